@@ -1,0 +1,309 @@
+"""belt-ndof: 1-3 masses in a chain of springs riding a belt (paper 000, eqs. 1-5).
+
+Paper 000's law is discontinuous (a static limit f_s(t_s, delta) and two kinetic
+branches), so this rig is integrated as a hybrid system with event detection
+instead of a regularised law: each mass is either stuck (moves with the belt,
+friction = whatever holds it) or slipping (friction from the law). RK4 steps are
+cut at the located event time (bisection on the step fraction, to 1e-10 of a
+step), so stick-slip switching is exact to that tolerance.
+
+Dimensional form of eq. (1) per mass, chain wall-k-m1-k-m2-k-m3 (free last mass):
+    M x_i'' + D x_i' + (K x)_i = F0 f(w_i),  w_i = (v_b - x_i') / v_u,  v_u = F0 / sqrt(K M)
+which is eq. (3) after the scaling (2): x = K X / F0, t = tau / sqrt(M/K), d = D / sqrt(K M).
+Static limit: f_s = f_s0 * static_factor(t_s, Delta) where t_s is the time stuck and
+Delta = d(friction needed)/dt while stuck (for one mass on a constant belt, K S: the paper's Delta).
+"""
+
+from __future__ import annotations
+
+import math
+from enum import IntEnum
+
+import numpy as np
+from .jit import helper, kernel
+
+from .contact import AUX, N_AUX
+from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, ramp_eval, static_factor
+from .effects import temperature_factor
+from .friction import f_pwl
+
+RIG_ID = "belt-ndof"
+SLIP = 0
+STICK = 1
+EVENT_TOL = 1e-10
+
+
+class P(IntEnum):
+    M = 0  # each mass [kg]
+    K = 1  # each spring [N/m]
+    F0 = 2  # friction unit (normal force) [N]
+    N = 3  # number of masses
+    F_S0 = 4
+    ALPHA_DROP = 5
+    F_K0 = 6
+    K_FALL = 7
+    W_MIN = 8
+    K_RISE = 9
+
+
+N_P = len(P)
+
+
+def n_state(n: int) -> int:
+    return 2 * n + len(TAIL)
+
+
+@helper
+def chain_force(left, mid, right, k, has_right):
+    """(K x)_i of the chain wall-k-m1-k-m2-...-mn (free last mass), from neighbour values."""
+    f = k * (mid - left)
+    if has_right:
+        f -= k * (right - mid)
+    return f
+
+
+@kernel
+def chain_at(x, i, n, k):
+    """(K x)_i for the chain positions (or velocities) in x[0:n]."""
+    left = x[i - 1] if i > 0 else 0.0
+    right = x[i + 1] if i < n - 1 else 0.0
+    return chain_force(left, x[i], right, k, i < n - 1)
+
+
+@kernel
+def drive(t, s, tail, e, rt, rv):
+    """Commanded and actual belt speed for state s: (v_cmd, v, dv/dt)."""
+    v_cmd, dv_cmd = ramp_eval(rt, rv, t)
+    v, dv = drive_speed(v_cmd, dv_cmd, s[tail + TAIL.VLAG], s[tail + TAIL.POS], e[E.VB_TAU], e[E.VB_RIPPLE],
+                        e[E.VB_WAVELEN])
+    return v_cmd, v, dv
+
+
+@kernel
+def rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
+    """Right-hand side for the current modes; fric[i] = friction force on mass i along +x [N]."""
+    n = int(p[P.N])
+    M = p[P.M]
+    K = p[P.K]
+    F0 = p[P.F0]
+    tail = 2 * n
+    v_cmd, vb, dvb = drive(t, s, tail, e, rt, rv)
+    skm = math.sqrt(K * M)
+    vu = F0 / skm
+    damp = e[E.D_BELT] * skm
+    tf = temperature_factor(s[tail + TAIL.TEMP], e[E.TEMP_COEF], e[E.TEMP_REF])
+    power = 0.0
+    for i in range(n):
+        vi = s[n + i]
+        kx = chain_at(s, i, n, K)
+        if mode[i] == STICK:
+            ds[i] = vb
+            ds[n + i] = dvb
+            fric[i] = M * dvb + damp * vi + kx
+        else:
+            w = (vb - vi) / vu
+            sg = slip_dir[i] if w == 0.0 else (1.0 if w > 0.0 else -1.0)
+            wl = w if w != 0.0 else 1e-300 * sg
+            fsb, a_d, f_k0, k_f, w_m, k_r = fs_break[i], p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
+            fp = f_pwl(wl, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, e[E.AS_AMP]) * tf + e[E.VS_D] * w
+            fm = f_pwl(wl, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, e[E.AS_AMP]) * tf + e[E.VS_D] * w
+            ap = (F0 * fp - damp * vi - kx) / M
+            am = (F0 * fm - damp * vi - kx) / M
+            wsel = 1.0 if fp == fm else accel_sign_weight(-sg, ap, am, dvb)
+            f = fm + 0.5 * (wsel + 1.0) * (fp - fm)
+            fric[i] = F0 * f
+            ds[i] = vi
+            ds[n + i] = (F0 * f - damp * vi - kx) / M
+        power += fric[i] * (vb - vi)
+    ds[tail + TAIL.TS] = 0.0  # stick clocks are exact event times, kept outside the ODE
+    ds[tail + TAIL.Q] = 0.0
+    d_temp, d_lag, d_pos = env_rates(power, v_cmd, vb, t, s[tail + TAIL.TEMP], s[tail + TAIL.VLAG], e[E.T_AMB],
+                                     e[E.TH_DRIFT], e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])
+    ds[tail + TAIL.TEMP] = d_temp
+    ds[tail + TAIL.VLAG] = d_lag
+    ds[tail + TAIL.POS] = d_pos
+    return v_cmd, vb, dvb
+
+
+@kernel
+def _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, out, k1, k2, k3, k4, tmp, fric):
+    ns = s.size
+    rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, k1, fric)
+    for j in range(ns):
+        tmp[j] = s[j] + 0.5 * h * k1[j]
+    rhs(t + 0.5 * h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k2, fric)
+    for j in range(ns):
+        tmp[j] = s[j] + 0.5 * h * k2[j]
+    rhs(t + 0.5 * h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k3, fric)
+    for j in range(ns):
+        tmp[j] = s[j] + h * k3[j]
+    rhs(t + h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k4, fric)
+    for j in range(ns):
+        out[j] = s[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+
+
+@kernel
+def _static_limit(ts, q, p, e):
+    return p[P.F_S0] * static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
+
+
+@kernel
+def _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
+    """Friction [N] needed to keep mass i stuck at state s, and its rate Delta [N/s]."""
+    n = int(p[P.N])
+    saved = mode[i]
+    mode[i] = STICK
+    _, vb, dvb = rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+    need = fric[i]
+    mode[i] = saved
+    K = p[P.K]
+    damp = e[E.D_BELT] * math.sqrt(K * p[P.M])
+    # Delta = d/dt (M vb' + D vb + (K x)_i) with x_i' = vb; vb'' neglected (piecewise-linear ramps)
+    vel = s[n:2 * n].copy()
+    vel[i] = vb
+    rate = damp * dvb + chain_at(vel, i, n, K)
+    return need, rate
+
+
+@kernel
+def _events(t, s, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags):
+    """Flag masses whose event fired at state s; return True if any did."""
+    n = int(p[P.N])
+    tail = 2 * n
+    any_ev = False
+    _, vb, _ = drive(t, s, tail, e, rt, rv)
+    for i in range(n):
+        flags[i] = 0
+        if mode[i] == SLIP:
+            w = vb - s[n + i]
+            if w * slip_dir[i] < 0.0:  # relative velocity crossed zero
+                flags[i] = 1
+                any_ev = True
+        else:
+            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+            if abs(need) > p[P.F0] * _static_limit(t - stick_t0[i], rate, p, e):
+                flags[i] = 1
+                any_ev = True
+    return any_ev
+
+
+@kernel
+def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, mode, fs_break, slip_dir, stick_t0):
+    """Hybrid integration from s0 at t0; returns states, aux (mass 1), friction per mass, modes, n_events.
+
+    The discrete state (mode, fs_break, slip_dir, stick_t0; one entry per mass) belongs to
+    the caller and is updated in place, so a long run can be integrated in chunks.
+    """
+    n = int(p[P.N])
+    ns = s0.size
+    tail = 2 * n
+    states = np.empty((n_out, ns))
+    auxs = np.zeros((n_out, N_AUX))
+    frics = np.empty((n_out, n))
+    modes_out = np.empty((n_out, n), dtype=np.int64)
+    s = s0.copy()
+    flags = np.zeros(n, dtype=np.int64)
+    k1 = np.empty(ns)
+    k2 = np.empty(ns)
+    k3 = np.empty(ns)
+    k4 = np.empty(ns)
+    tmp = np.empty(ns)
+    trial = np.empty(ns)
+    ds = np.empty(ns)
+    fric = np.empty(n)
+    n_events = 0
+    t = t0
+    for k in range(n_out):
+        t_target = t0 + k * n_sub * dt
+        while t_target - t > 1e-12 * dt:
+            h = min(dt, t_target - t)
+            _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4, tmp, fric)
+            if _events(t + h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags):
+                lo = 0.0
+                hi = 1.0
+                while (hi - lo) > EVENT_TOL:
+                    mid = 0.5 * (lo + hi)
+                    _rk4_step(t, s, mid * h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4,
+                              tmp, fric)
+                    if _events(t + mid * h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric,
+                               flags):
+                        hi = mid
+                    else:
+                        lo = mid
+                h = hi * h
+                _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4, tmp, fric)
+                _events(t + h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags)
+                t += h
+                s[:] = trial
+                _switch(t, s, mode, fs_break, slip_dir, stick_t0, flags, p, e, rt, rv, ds, fric)
+                n_events += 1
+            else:
+                t += h
+                s[:] = trial
+        _, vb, _ = rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+        states[k] = s
+        frics[k] = fric
+        modes_out[k] = mode
+        v_cmd, vb, _ = drive(t, s, tail, e, rt, rv)
+        # aux in the common convention: F = mu(V_rel) N with V_rel = body - drive, force on body = -F
+        auxs[k, AUX.F] = -fric[0]
+        auxs[k, AUX.N] = p[P.F0]
+        auxs[k, AUX.MU] = -fric[0] / p[P.F0]
+        auxs[k, AUX.V_DRIVE] = vb
+        auxs[k, AUX.V_CMD] = v_cmd
+        auxs[k, AUX.V_REL] = s[n] - vb
+        auxs[k, AUX.N_INST] = p[P.F0]
+        auxs[k, AUX.ACC] = ds[n]
+    return states, auxs, frics, modes_out, n_events
+
+
+@kernel
+def _switch(t, s, mode, fs_break, slip_dir, stick_t0, flags, p, e, rt, rv, ds, fric):
+    """Apply the mode changes flagged at an event."""
+    n = int(p[P.N])
+    tail = 2 * n
+    _, vb, _ = drive(t, s, tail, e, rt, rv)
+    for i in range(n):
+        if flags[i] == 0:
+            continue
+        if mode[i] == SLIP:
+            # w reached zero: stick if the static limit (fresh contact, t_s = 0) can hold the mass
+            s[n + i] = vb
+            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+            limit = p[P.F0] * _static_limit(0.0, rate, p, e)
+            if abs(need) <= limit:
+                mode[i] = STICK
+                stick_t0[i] = t
+            else:  # passes through zero relative velocity: reversal of slip
+                slip_dir[i] = 1.0 if need > 0.0 else -1.0
+                fs_break[i] = limit / p[P.F0]
+        else:
+            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+            fs_break[i] = _static_limit(t - stick_t0[i], rate, p, e)
+            mode[i] = SLIP
+            # friction needed > 0 means the spring pulls back: the mass lags the belt, w > 0
+            slip_dir[i] = 1.0 if need > 0.0 else -1.0
+
+
+def energy(states: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Kinetic plus spring energy of the chain (conserved with friction and damping off)."""
+    n = int(p[P.N])
+    x = states[..., :n]
+    v = states[..., n:2 * n]
+    kin = 0.5 * p[P.M] * np.sum(v**2, axis=-1)
+    ext = x[..., :1] ** 2
+    if n > 1:
+        ext = np.concatenate([ext, np.diff(x, axis=-1) ** 2], axis=-1)
+    return kin + 0.5 * p[P.K] * np.sum(ext, axis=-1)
+
+
+def linear_modes(p: np.ndarray) -> np.ndarray:
+    """Natural frequencies [Hz] of the chain without friction."""
+    n = int(p[P.N])
+    kmat = np.zeros((n, n))
+    for i in range(n):
+        kmat[i, i] = 2.0 if i < n - 1 else 1.0
+        if i > 0:
+            kmat[i, i - 1] = kmat[i - 1, i] = -1.0
+    w2 = np.linalg.eigvalsh(kmat * p[P.K] / p[P.M])
+    return np.sqrt(w2) / (2 * math.pi)

@@ -1,0 +1,386 @@
+"""The effects catalog: every physical effect as a parameterised term with a neutral value.
+
+Why one vector for all effects: the simulator and the models call the same
+compiled equations; an effect that is "off" is simply at its neutral value, so
+adding or removing an effect never changes code, only numbers. The slots of
+that vector are named by :class:`E`; each rig's equations read the slots that
+apply to it. Stateful effects (stick time, force rate, temperature, belt lag)
+carry their state in the common *contact tail* of every rig's state vector,
+see :data:`TAIL`.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import IntEnum
+
+import numpy as np
+from .jit import helper, kernel
+from pydantic import BaseModel, ConfigDict
+
+
+class E(IntEnum):
+    """Slots of the effect/environment vector ``e`` shared by all rigs."""
+
+    NL_WEIGHT = 0  # normal-load: 0 = nominal constant load, 1 = instantaneous load
+    GEO_WEIGHT = 1  # geometric: 0 = linear springs, no angular-body gravity, 1 = paper 001
+    C1 = 2  # viscous-damping (brake): c1 [N s/m]
+    C2 = 3  # viscous-damping (brake): c2 [N s/m]
+    D_BELT = 4  # viscous-damping (belt-ndof): dimensionless d
+    C_PHI = 5  # viscous-damping (drum): [N m s/rad]
+    AS_AMP = 6  # accel-sign: relative difference of the two kinetic branches [-]
+    ST_GAIN = 7  # stick-time: relative static-peak increase at long stick [-]
+    ST_TAU = 8  # stick-time: adhesion time constant [s]
+    FR_GAIN = 9  # force-rate: static-peak gain per e-fold of load rate [-]
+    FR_Q0 = 10  # force-rate: reference load rate [N/s]
+    BF_TORQUE = 11  # bearing-friction (brake pivot): dry torque [N m]
+    BF_MU1 = 12  # bearing-friction (drum): reduced bearing coefficient mu1 [-]
+    BF_EPS = 13  # bearing-friction: smoothing rate of sgn(phi_dot) [rad/s]
+    TEMP_COEF = 14  # temperature: d(mu)/mu per kelvin [1/K]
+    TEMP_REF = 15  # temperature: reference temperature [degC]
+    VB_TAU = 16  # belt-speed: first-order lag of the drive [s]
+    VB_RIPPLE = 17  # belt-speed: relative ripple amplitude [-]
+    VB_WAVELEN = 18  # belt-speed: ripple wavelength in belt travel [m] (drum: [rad])
+    VS_D = 19  # velocity-strengthening: d(mu)/dv [s/m] (belt-ndof: dimensionless)
+    # environment and contact properties (not effects, but read by the same terms)
+    V_STICK = 20  # relative speed below which the contact counts as stuck/creeping [m/s]
+    T_AMB = 21  # ambient temperature [degC]
+    TH_R = 22  # thermal resistance contact->ambient [K/W]
+    TH_TAU = 23  # thermal time constant [s]
+    TH_DRIFT = 24  # ambient drift [K/s]
+    FR_TAU = 25  # force-rate: time constant of the load-rate tracker while stuck [s]
+    ST_RESET = 26  # stick-time: decay time of the stick clock while slipping [s]
+
+
+N_E = len(E)
+
+
+class TAIL(IntEnum):
+    """Offsets of the contact tail appended to every rig's mechanical state."""
+
+    TS = 0  # stick (adhesion) clock [s]
+    Q = 1  # load rate remembered from the last stick [N/s]
+    TEMP = 2  # contact temperature [degC]
+    VLAG = 3  # drive speed after the drive's lag [m/s]
+    POS = 4  # drive travel [m] (drum: drum angle [rad])
+
+
+N_TAIL = len(TAIL)
+
+
+# ---------------------------------------------------------------------------
+# Catalog (Python side): names, parameters, neutral values, where each applies
+# ---------------------------------------------------------------------------
+
+
+class ParamSpec(BaseModel):
+    """One parameter of an effect; ``neutral`` is the value at which the effect vanishes."""
+
+    model_config = ConfigDict(frozen=True)
+    key: str
+    slot: E
+    unit: str
+    neutral: float
+    lo: float
+    hi: float
+    doc: str
+
+
+class EffectSpec(BaseModel):
+    model_config = ConfigDict(frozen=True)
+    name: str
+    meaning: str
+    seed: str
+    rigs: tuple[str, ...]
+    params: dict[str, tuple[ParamSpec, ...]]  # rig id -> the keys that rig uses
+    stateful: bool = False
+
+    def params_for(self, rig: str) -> tuple[ParamSpec, ...]:
+        return self.params.get(rig, self.params.get("*", ()))
+
+
+def _p(key: str, slot: E, unit: str, neutral: float, lo: float, hi: float, doc: str) -> ParamSpec:
+    return ParamSpec(key=key, slot=slot, unit=unit, neutral=neutral, lo=lo, hi=hi, doc=doc)
+
+
+ALL_RIGS = ("belt-ndof", "brake-2dof", "drum-pendulum")
+
+CATALOG: dict[str, EffectSpec] = {
+    s.name: s
+    for s in [
+        EffectSpec(
+            name="normal-load",
+            meaning="friction follows the instantaneous normal load (eq. 6 / thrust gauge), not a constant one",
+            seed="001, 002",
+            rigs=("brake-2dof", "drum-pendulum"),
+            params={"*": (_p("weight", E.NL_WEIGHT, "-", 0.0, 0.0, 1.5,
+                             "blend from nominal (0) to instantaneous (1) normal load"),)},
+        ),
+        EffectSpec(
+            name="geometric",
+            meaning="geometric nonlinearity and gravity of the angular body",
+            seed="001",
+            rigs=("brake-2dof",),
+            params={"*": (_p("weight", E.GEO_WEIGHT, "-", 0.0, 0.0, 1.5,
+                             "scales the x1^2/2r spring terms and the angular body's gravity (1 = paper 001)"),)},
+        ),
+        EffectSpec(
+            name="viscous-damping",
+            meaning="viscous terms c1, c2, d",
+            seed="000, 001",
+            rigs=ALL_RIGS,
+            params={
+                "brake-2dof": (
+                    _p("c1", E.C1, "N s/m", 0.0, 0.0, 1.0, "damper between block and angular body"),
+                    _p("c2", E.C2, "N s/m", 0.0, 0.0, 1.0, "damper in the vertical spring"),
+                ),
+                "belt-ndof": (_p("d", E.D_BELT, "-", 0.0, 0.0, 2.0, "dimensionless damping d of eq. (3)"),),
+                "drum-pendulum": (_p("c", E.C_PHI, "N m s/rad", 0.0, 0.0, 1.0, "pendulum air/structural damping"),),
+            },
+        ),
+        EffectSpec(
+            name="accel-sign",
+            meaning="kinetic friction differs between accelerating and decelerating relative motion",
+            seed="000",
+            rigs=ALL_RIGS,
+            params={"*": (_p("amp", E.AS_AMP, "-", 0.0, -0.5, 0.5,
+                             "mu x (1+amp) while |v_rel| grows, mu x (1-amp) while it shrinks"),)},
+        ),
+        EffectSpec(
+            name="stick-time",
+            meaning="static (peak) friction grows with adhesion time",
+            seed="000",
+            rigs=ALL_RIGS,
+            stateful=True,
+            params={"*": (
+                _p("gain", E.ST_GAIN, "-", 0.0, 0.0, 2.0, "relative peak increase after long adhesion"),
+                _p("tau", E.ST_TAU, "s", 1.0, 0.01, 100.0, "adhesion time constant"),
+            )},
+        ),
+        EffectSpec(
+            name="force-rate",
+            meaning="static friction depends on the force rate during stick",
+            seed="000",
+            rigs=ALL_RIGS,
+            stateful=True,
+            params={"*": (
+                _p("gain", E.FR_GAIN, "-", 0.0, 0.0, 2.0, "relative peak increase per e-fold of load rate"),
+                _p("q0", E.FR_Q0, "N/s", 1.0, 1e-3, 1e4, "reference load rate"),
+            )},
+        ),
+        EffectSpec(
+            name="bearing-friction",
+            meaning="dry friction torque in the pivot bearing",
+            seed="002",
+            rigs=("brake-2dof", "drum-pendulum"),
+            params={
+                "brake-2dof": (_p("torque", E.BF_TORQUE, "N m", 0.0, 0.0, 0.05, "dry pivot torque Q"),),
+                "drum-pendulum": (_p("mu1", E.BF_MU1, "-", 0.0, 0.0, 0.5, "reduced bearing coefficient mu1"),),
+            },
+        ),
+        EffectSpec(
+            name="temperature",
+            meaning="friction coefficient varies with contact temperature",
+            seed="002",
+            rigs=ALL_RIGS,
+            params={"*": (
+                _p("coef", E.TEMP_COEF, "1/K", 0.0, -0.1, 0.1, "relative change of mu per kelvin"),
+                _p("ref", E.TEMP_REF, "degC", 20.0, -50.0, 300.0, "temperature at which mu is nominal"),
+            )},
+        ),
+        EffectSpec(
+            name="belt-speed",
+            meaning="the belt does not follow the command (ripple, lag); drive the model with measured speed",
+            seed="001",
+            rigs=ALL_RIGS,
+            stateful=True,
+            params={"*": (
+                _p("tau", E.VB_TAU, "s", 0.0, 0.0, 5.0, "first-order lag of the drive"),
+                _p("ripple", E.VB_RIPPLE, "-", 0.0, 0.0, 0.5, "relative speed ripple"),
+                _p("wavelength", E.VB_WAVELEN, "m", 1.0, 1e-3, 100.0,
+                   "ripple period in belt travel (drum: in drum angle, rad)"),
+            )},
+        ),
+        EffectSpec(
+            name="velocity-strengthening",
+            meaning="friction rises linearly with slip speed (Dv term)",
+            seed="002",
+            rigs=ALL_RIGS,
+            params={"*": (_p("D", E.VS_D, "s/m", 0.0, -5.0, 20.0,
+                             "mu += D v_rel (belt-ndof: dimensionless f += D w)"),)},
+        ),
+    ]
+}
+
+# Environment slots every rig config must give (they are not effects: no neutral value).
+ENVIRONMENT_SLOTS: dict[str, E] = {
+    "v_stick": E.V_STICK,
+    "t_ambient": E.T_AMB,
+    "r_thermal": E.TH_R,
+    "tau_thermal": E.TH_TAU,
+    "ambient_drift": E.TH_DRIFT,
+    "force_rate_tau": E.FR_TAU,
+    "stick_reset_tau": E.ST_RESET,
+}
+
+
+def neutral_vector() -> np.ndarray:
+    """The effect vector with every effect off."""
+    e = np.zeros(N_E)
+    for spec in CATALOG.values():
+        for plist in spec.params.values():
+            for ps in plist:
+                e[ps.slot] = ps.neutral
+    return e
+
+
+def effect_names() -> list[str]:
+    return list(CATALOG)
+
+
+# ---------------------------------------------------------------------------
+# Terms (compiled): pure scalar functions
+#
+# Why scalars only: a compiled helper that takes an array and branches pays an
+# atomic reference-count pair per call (~20 ns), which dominated the right-hand
+# side. Each rig unpacks p, e and s once and passes numbers.
+# ---------------------------------------------------------------------------
+
+
+@helper
+def smooth_sign(v: float, eps: float) -> float:
+    """tanh(v/eps), the regularised sgn used where the papers write sgn()."""
+    if eps <= 0.0:
+        return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+    return math.tanh(v / eps)
+
+
+@helper
+def normal_load(n_inst: float, n_nominal: float, weight: float) -> float:
+    """normal-load: blend between the nominal and the instantaneous normal load."""
+    return n_nominal + weight * (n_inst - n_nominal)
+
+
+@helper
+def stuck_fraction(v_rel: float, v_stick: float) -> float:
+    """Smooth indicator (1 = stuck/creeping, 0 = slipping) used by the stateful static effects."""
+    x2 = (v_rel / v_stick) ** 2
+    return math.exp(-x2) if x2 < 700.0 else 0.0  # avoid libm's slow underflow path
+
+
+@helper
+def static_factor(ts: float, q: float, st_gain: float, st_tau: float, fr_gain: float, fr_q0: float) -> float:
+    """stick-time and force-rate: multiplier on the static (peak) part of a friction law.
+
+    stick-time: 1 + gain (1 - exp(-t_s/tau)) (saturating growth, paper 000 Fig. 11);
+    force-rate: + gain ln(1 + |q|/q0) (rate-strengthening of the static limit).
+    """
+    f = 1.0
+    if st_gain != 0.0:
+        f += st_gain * (1.0 - math.exp(-max(ts, 0.0) / st_tau))
+    if fr_gain != 0.0:
+        f += fr_gain * math.log1p(abs(q) / fr_q0)
+    return f
+
+
+@helper
+def temperature_factor(temp: float, coef: float, ref: float) -> float:
+    """temperature: linear sensitivity of the friction coefficient around a reference."""
+    return 1.0 + coef * (temp - ref)
+
+
+@kernel
+def ramp_eval(rt: np.ndarray, rv: np.ndarray, t: float):
+    """Piecewise-linear drive programme: value and slope at t (held constant outside the table)."""
+    n = rt.size
+    if t <= rt[0]:
+        return rv[0], 0.0
+    if t >= rt[n - 1]:
+        return rv[n - 1], 0.0
+    lo = 0
+    hi = n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if rt[mid] <= t:
+            lo = mid
+        else:
+            hi = mid
+    slope = (rv[hi] - rv[lo]) / (rt[hi] - rt[lo])
+    return rv[lo] + slope * (t - rt[lo]), slope
+
+
+@helper
+def drive_speed(v_cmd: float, dv_cmd: float, v_lag: float, pos: float, tau: float, ripple: float,
+                wavelen: float):
+    """belt-speed: actual drive speed and its derivative given the command.
+
+    Returns (v, dv/dt). Without the effect (tau = 0, ripple = 0) the drive follows the command.
+    The ripple is periodic in belt travel (a belt joint or an eccentric pulley).
+    """
+    if tau > 0.0:
+        v_base = v_lag
+        dv_base = (v_cmd - v_lag) / tau
+    else:
+        v_base = v_cmd
+        dv_base = dv_cmd
+    if ripple == 0.0:
+        return v_base, dv_base
+    k = 2.0 * math.pi / wavelen
+    ph = k * pos
+    rip = 1.0 + ripple * math.sin(ph)
+    v = v_base * rip
+    # d/dt [v_base (1 + a sin(k pos))] with d pos/dt = v
+    return v, dv_base * rip + v_base * ripple * math.cos(ph) * k * v
+
+
+@helper
+def accel_sign_weight(sgn_v: float, acc_plus: float, acc_minus: float, drive_acc: float) -> float:
+    """accel-sign: which kinetic branch applies, given the accelerations each branch would produce.
+
+    The branch multiplier is (1 + amp*w) with w = +1 while |v_rel| grows and -1 while
+    it shrinks. The choice depends on the acceleration it causes, so we pick the
+    self-consistent branch; when neither is (the friction jump would reverse the
+    trend) the contact slides along d|v_rel|/dt = 0 (Filippov), which fixes w in (-1, 1).
+    ``acc_plus``/``acc_minus`` are the body accelerations (same units as the drive's)
+    with w = +1/-1; returns w.
+    """
+    g_plus = sgn_v * (acc_plus - drive_acc)  # d|v_rel|/dt on the growing branch
+    g_minus = sgn_v * (acc_minus - drive_acc)
+    if g_plus > 0.0:
+        return 1.0
+    if g_minus < 0.0:
+        return -1.0
+    if g_minus == g_plus:
+        return 0.0
+    # linear in w: g(w) = g_minus + (w + 1)/2 (g_plus - g_minus) = 0
+    return -1.0 + 2.0 * g_minus / (g_minus - g_plus)
+
+
+@helper
+def env_rates(friction_power: float, v_cmd: float, v_drive: float, t: float, temp: float, v_lag: float,
+              t_amb: float, drift: float, r_th: float, tau_th: float, vb_tau: float):
+    """Rates of temperature, drive lag and drive travel: (dT/dt, dv_lag/dt, dpos/dt)."""
+    d_temp = (t_amb + drift * t + r_th * abs(friction_power) - temp) / tau_th
+    d_lag = (v_cmd - v_lag) / vb_tau if vb_tau > 0.0 else 0.0
+    return d_temp, d_lag, v_drive
+
+
+@helper
+def stick_rates(v_rel: float, load_rate: float, ts: float, q: float, v_stick: float, fr_tau: float,
+                st_reset: float):
+    """Rates of the stick clock and of the load rate remembered from the last stick.
+
+    While stuck the clock runs and q tracks the tangential load rate; while slipping the
+    clock decays (time constant st_reset) and q is held.
+    """
+    st = stuck_fraction(v_rel, v_stick)
+    return st - (1.0 - st) * ts / st_reset, st * (load_rate - q) / fr_tau
+
+
+@helper
+def stick_rates_if_read(v_rel: float, load_rate: float, ts: float, q: float, e_st_gain: float, e_fr_gain: float,
+                        v_stick: float, fr_tau: float, st_reset: float):
+    """stick_rates, but frozen at zero when neither stick-time nor force-rate reads the clock (saves an exp)."""
+    if e_st_gain == 0.0 and e_fr_gain == 0.0:
+        return 0.0, 0.0
+    return stick_rates(v_rel, load_rate, ts, q, v_stick, fr_tau, st_reset)

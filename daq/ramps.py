@@ -1,0 +1,170 @@
+"""Belt/drum speed programmes: the seed ramp (paper 001 eq. 11) and ramp files.
+
+A ramp file is TOML with segments (hold, linear, exponential, seed) or a CSV
+table ``t,vb``. Every programme becomes a piecewise-linear table (t, v) that
+the simulator, and later the daemon's set-point generator, evaluate. Speeds
+are surface speeds in m/s (drum: circumferential speed at the friction radius).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .errors import InputError
+
+EXP_POINTS = 200  # samples per exponential segment in the table
+
+
+class Segment(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["hold", "linear", "exponential", "seed"]
+    duration_s: float | None = Field(None, gt=0.0)
+    to_m_per_s: float | None = Field(None, ge=0.0, description="end speed (linear, exponential)")
+    tau_s: float | None = Field(None, gt=0.0, description="time constant (exponential)")
+    V0_m_per_s: float | None = Field(None, ge=0.0, description="seed: initial speed")
+    Tmax_s: float | None = Field(None, gt=0.0, description="seed: time to standstill")
+
+
+class Ramp(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str = "ramp"
+    start_m_per_s: float | None = Field(None, ge=0.0)
+    segment: list[Segment] = Field(min_length=1)
+
+
+def seed_ramp(v0: float, tmax: float, duration: float | None = None) -> Ramp:
+    """Paper 001 eq. (11): v_b = V0 (1 - t/Tmax)."""
+    return Ramp(name=f"seed V0={v0} Tmax={tmax}", segment=[
+        Segment(kind="seed", V0_m_per_s=v0, Tmax_s=tmax, duration_s=duration or tmax)])
+
+
+def constant_ramp(v0: float, duration: float) -> Ramp:
+    return Ramp(name=f"constant {v0}", start_m_per_s=v0, segment=[Segment(kind="hold", duration_s=duration)])
+
+
+def _need(seg: Segment, i: int, attr: str, source: str):
+    v = getattr(seg, attr)
+    if v is None:
+        raise InputError(source, f"segment[{i}].{attr}", f"required for a '{seg.kind}' segment")
+    return v
+
+
+def ramp_table(ramp: Ramp, source: str = "ramp") -> tuple[np.ndarray, np.ndarray]:
+    """Piecewise-linear (t, v) table of a ramp; exact for hold, linear and seed segments."""
+    first = ramp.segment[0]
+    v = ramp.start_m_per_s
+    if v is None:
+        v = first.V0_m_per_s if first.kind == "seed" and first.V0_m_per_s is not None else None
+    if v is None:
+        raise InputError(source, "start_m_per_s", "required unless the first segment is 'seed'")
+    ts = [0.0]
+    vs = [float(v)]
+    t = 0.0
+    for i, seg in enumerate(ramp.segment):
+        if seg.kind == "hold":
+            t += _need(seg, i, "duration_s", source)
+            ts.append(t)
+            vs.append(v)
+        elif seg.kind == "linear":
+            t += _need(seg, i, "duration_s", source)
+            v = _need(seg, i, "to_m_per_s", source)
+            ts.append(t)
+            vs.append(v)
+        elif seg.kind == "exponential":
+            dur = _need(seg, i, "duration_s", source)
+            target = _need(seg, i, "to_m_per_s", source)
+            tau = _need(seg, i, "tau_s", source)
+            v_start = v
+            for k in range(1, EXP_POINTS + 1):
+                tt = dur * k / EXP_POINTS
+                ts.append(t + tt)
+                vs.append(target + (v_start - target) * math.exp(-tt / tau))
+            t += dur
+            v = vs[-1]
+        else:  # seed
+            v0 = _need(seg, i, "V0_m_per_s", source)
+            tmax = _need(seg, i, "Tmax_s", source)
+            dur = seg.duration_s or tmax
+            if dur > tmax:
+                raise InputError(source, f"segment[{i}].duration_s", f"{dur} exceeds Tmax_s={tmax}")
+            if abs(v0 - v) > 1e-12:  # a step to V0 at the segment start
+                ts.append(t)
+                vs.append(v0)
+            t += dur
+            v = v0 * (1.0 - dur / tmax)
+            ts.append(t)
+            vs.append(v)
+    return np.asarray(ts, dtype=float), np.asarray(vs, dtype=float)
+
+
+def check_limits(rt: np.ndarray, rv: np.ndarray, max_speed: float, max_accel: float, source: str) -> None:
+    """Refuse a programme beyond the rig's speed or acceleration limits, before any motion."""
+    if np.any(rv < 0.0):
+        raise InputError(source, "speed", "negative speed in the programme")
+    i = int(np.argmax(rv))
+    if rv[i] > max_speed * (1 + 1e-9):
+        raise InputError(source, "speed", f"{rv[i]:.4g} m/s at t={rt[i]:.4g} s exceeds the rig limit {max_speed} m/s")
+    dt = np.diff(rt)
+    dv = np.abs(np.diff(rv))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        acc = np.where(dt > 0, dv / np.where(dt > 0, dt, 1.0), np.where(dv > 0, np.inf, 0.0))
+    if acc.size and acc.max() > max_accel * (1 + 1e-9):
+        j = int(np.argmax(acc))
+        raise InputError(source, "acceleration",
+                         f"{acc[j]:.4g} m/s^2 at t={rt[j]:.4g} s exceeds the rig limit {max_accel} m/s^2")
+
+
+def load_ramp(path: str | Path) -> tuple[Ramp | None, np.ndarray, np.ndarray]:
+    """Load a ramp file (.toml segments or .csv table t,vb); returns (ramp or None, t, v)."""
+    path = Path(path)
+    src = str(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise InputError(src, "(file)", exc.strerror or str(exc)) from None
+    if path.suffix.lower() == ".csv":
+        rt, rv = _csv_table(text, src)
+        return None, rt, rv
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(src, "(syntax)", str(exc)) from None
+    try:
+        ramp = Ramp.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(f"[{x}]" if isinstance(x, int) else str(x) for x in err["loc"]).replace(".[", "[")
+        raise InputError(src, field or "(root)", err["msg"]) from None
+    rt, rv = ramp_table(ramp, src)
+    return ramp, rt, rv
+
+
+def _csv_table(text: str, src: str) -> tuple[np.ndarray, np.ndarray]:
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise InputError(src, "(header)", "empty file")
+    header = [h.strip() for h in rows[0]]
+    for col in ("t", "vb"):
+        if col not in header:
+            raise InputError(src, col, "missing column (need t, vb)")
+    it, iv = header.index("t"), header.index("vb")
+    ts, vs = [], []
+    for n, row in enumerate(rows[1:], start=2):
+        if not row:
+            continue
+        try:
+            ts.append(float(row[it]))
+            vs.append(float(row[iv]))
+        except (ValueError, IndexError):
+            raise InputError(src, f"line {n}", "t and vb must be numbers") from None
+    rt, rv = np.asarray(ts), np.asarray(vs)
+    if rt.size < 2 or np.any(np.diff(rt) <= 0):
+        raise InputError(src, "t", "need at least two rows with strictly increasing t")
+    return rt - rt[0], rv
