@@ -20,7 +20,16 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class _FieldError(ValueError):
+    """A model-level check that knows the field it is about, so the InputError can name it."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.message = message
+        super().__init__(f"{field}: {message}")
 
 
 class ChannelCfg(Strict):
@@ -145,13 +154,13 @@ class RigBase(Strict):
             for name, values in getattr(self, table).items():
                 spec = CATALOG.get(name)
                 if spec is None:
-                    raise ValueError(f"{table}.{name}: unknown effect (catalog: {', '.join(CATALOG)})")
+                    raise _FieldError(f"{table}.{name}", f"unknown effect (catalog: {', '.join(CATALOG)})")
                 if self.rig not in spec.rigs:
-                    raise ValueError(f"{table}.{name}: effect does not apply to {self.rig}")
+                    raise _FieldError(f"{table}.{name}", f"effect does not apply to {self.rig}")
                 keys = {ps.key for ps in spec.params_for(self.rig)}
                 for k in values:
                     if k not in keys:
-                        raise ValueError(f"{table}.{name}.{k}: unknown parameter (has {', '.join(sorted(keys))})")
+                        raise _FieldError(f"{table}.{name}.{k}", f"unknown parameter (has {', '.join(sorted(keys))})")
         return self
 
 
@@ -195,6 +204,9 @@ def parse_rig(data: dict[str, Any], source: str) -> RigConfig:
         return model.model_validate(data)  # type: ignore[return-value]
     except ValidationError as exc:
         err = exc.errors()[0]
+        cause = err.get("ctx", {}).get("error")
+        if isinstance(cause, _FieldError):
+            raise InputError(source, cause.field, cause.message) from None
         msg = err["msg"].removeprefix("Value error, ")
         raise InputError(source, _field_path(err["loc"]), msg) from None
 

@@ -23,7 +23,7 @@ EXP_POINTS = 200  # samples per exponential segment in the table
 
 
 class Segment(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["hold", "linear", "exponential", "seed"]
     duration_s: float | None = Field(None, gt=0.0)
     to_m_per_s: float | None = Field(None, ge=0.0, description="end speed (linear, exponential)")
@@ -33,7 +33,7 @@ class Segment(BaseModel):
 
 
 class Ramp(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str = "ramp"
     start_m_per_s: float | None = Field(None, ge=0.0)
     segment: list[Segment] = Field(min_length=1)
@@ -106,6 +106,10 @@ def ramp_table(ramp: Ramp, source: str = "ramp") -> tuple[np.ndarray, np.ndarray
 
 def check_limits(rt: np.ndarray, rv: np.ndarray, max_speed: float, max_accel: float, source: str) -> None:
     """Refuse a programme beyond the rig's speed or acceleration limits, before any motion."""
+    if not np.all(np.isfinite(rt)):
+        raise InputError(source, "t", "non-finite time in the programme")
+    if not np.all(np.isfinite(rv)):
+        raise InputError(source, "speed", "non-finite speed in the programme")
     if np.any(rv < 0.0):
         raise InputError(source, "speed", "negative speed in the programme")
     i = int(np.argmax(rv))
@@ -160,10 +164,13 @@ def _csv_table(text: str, src: str) -> tuple[np.ndarray, np.ndarray]:
         if not row:
             continue
         try:
-            ts.append(float(row[it]))
-            vs.append(float(row[iv]))
+            t, v = float(row[it]), float(row[iv])
         except (ValueError, IndexError):
             raise InputError(src, f"line {n}", "t and vb must be numbers") from None
+        if not (math.isfinite(t) and math.isfinite(v)):
+            raise InputError(src, f"line {n}", "t and vb must be finite numbers")
+        ts.append(t)
+        vs.append(v)
     rt, rv = np.asarray(ts), np.asarray(vs)
     if rt.size < 2 or np.any(np.diff(rt) <= 0):
         raise InputError(src, "t", "need at least two rows with strictly increasing t")

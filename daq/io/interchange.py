@@ -50,7 +50,19 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
+def _check_shapes(rec: Recording) -> None:
+    """Refuse a recording whose channels do not match ``t`` sample for sample; it would write a malformed file."""
+    n = np.shape(rec.t)
+    if len(n) != 1:
+        raise ValueError(f"t must be one-dimensional, has shape {n}")
+    for group, arrays in (("channels", rec.channels), ("truth", rec.truth)):
+        for name, x in arrays.items():
+            if np.shape(x) != n:
+                raise ValueError(f"{group}/{name} has shape {np.shape(x)}, t has {n}")
+
+
 def write_csv(rec: Recording, path: str | Path, truth: bool = False) -> None:
+    _check_shapes(rec)
     cols = {"t": rec.t, **rec.channels}
     if truth:
         cols.update({f"truth_{k}": v for k, v in rec.truth.items()})
@@ -69,6 +81,7 @@ def _attr(v: object) -> object:
 
 
 def write_h5(rec: Recording, path: str | Path) -> None:
+    _check_shapes(rec)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = "friction-daq recording 1"
@@ -102,7 +115,7 @@ def read_csv(path: str | Path) -> Recording:
     """Read an interchange CSV: header row, first column ``t`` [s], numbers only."""
     src = str(path)
     try:
-        fh = open(path, newline="")
+        fh = open(path, newline="", encoding="utf-8-sig")  # tolerate the BOM Excel writes
     except OSError as exc:
         raise InputError(src, "(file)", exc.strerror or str(exc)) from None
     with fh:
@@ -113,6 +126,9 @@ def read_csv(path: str | Path) -> Recording:
         header = [h.strip() for h in header]
         if header[0] != "t":
             raise InputError(src, "t", f"first column must be 't' [s], found {header[0]!r}")
+        dup = next((h for i, h in enumerate(header) if h in header[:i]), None)
+        if dup is not None:
+            raise InputError(src, dup, "duplicate column")
         rows = []
         for n, row in enumerate(reader, start=2):
             if not row:
@@ -125,7 +141,7 @@ def read_csv(path: str | Path) -> Recording:
                 bad = next(i for i, x in enumerate(row) if not _isfloat(x))
                 raise InputError(src, f"{header[bad]} (line {n})", f"not a number: {row[bad]!r}") from None
     data = np.asarray(rows, dtype=float).reshape(-1, len(header))
-    if data.shape[0] < 2 or np.any(np.diff(data[:, 0]) <= 0):
+    if data.shape[0] < 2 or not np.all(np.isfinite(data[:, 0])) or not np.all(np.diff(data[:, 0]) > 0):
         raise InputError(src, "t", "need at least two rows with strictly increasing t")
     channels = {h: data[:, i] for i, h in enumerate(header) if i > 0 and not h.startswith("truth_")}
     truth = {h.removeprefix("truth_"): data[:, i] for i, h in enumerate(header) if h.startswith("truth_")}

@@ -4,8 +4,10 @@ Paper 000's law is discontinuous (a static limit f_s(t_s, delta) and two kinetic
 branches), so this rig is integrated as a hybrid system with event detection
 instead of a regularised law: each mass is either stuck (moves with the belt,
 friction = whatever holds it) or slipping (friction from the law). RK4 steps are
-cut at the located event time (bisection on the step fraction, to 1e-10 of a
-step), so stick-slip switching is exact to that tolerance.
+cut at every located event (bisection on the step fraction to 1e-10 of a step):
+stick->slip, slip->stick, and the places where the slipping law changes its
+smooth piece (its kinks and the accel-sign branch switch), so RK4 keeps its
+order between events.
 
 Dimensional form of eq. (1) per mass, chain wall-k-m1-k-m2-k-m3 (free last mass):
     M x_i'' + D x_i' + (K x)_i = F0 f(w_i),  w_i = (v_b - x_i') / v_u,  v_u = F0 / sqrt(K M)
@@ -20,17 +22,18 @@ import math
 from enum import IntEnum
 
 import numpy as np
-from .jit import helper, kernel
 
 from .contact import AUX, N_AUX
 from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, ramp_eval, static_factor
 from .effects import temperature_factor
-from .friction import f_pwl
+from .friction import f_pwl_piece
+from .jit import helper, kernel
 
 RIG_ID = "belt-ndof"
-SLIP = 0
-STICK = 1
+SLIP = 0.0
+STICK = 1.0
 EVENT_TOL = 1e-10
+MAX_SOFT_EVENTS = 200  # per output interval; beyond this, kinks are stepped over (chattering guard)
 
 
 class P(IntEnum):
@@ -49,8 +52,30 @@ class P(IntEnum):
 N_P = len(P)
 
 
+class H(IntEnum):
+    """Rows of the hybrid (discrete) state, one column per mass."""
+
+    MODE = 0  # SLIP or STICK
+    FS_BREAK = 1  # static limit at the last break-away (start of the growing branch)
+    SLIP_DIR = 2  # sign of w while slipping (used when w is exactly 0)
+    STICK_T0 = 3  # time the current stick began
+    REGION = 4  # smooth piece of the law the mass is on (0 = stuck)
+
+
+N_H = len(H)
+
+
 def n_state(n: int) -> int:
     return 2 * n + len(TAIL)
+
+
+def new_hybrid(n: int, f_s0: float, slip_dir: float) -> np.ndarray:
+    """All masses slipping in direction slip_dir, break-away limit f_s0."""
+    hs = np.zeros((N_H, n))
+    hs[H.MODE] = SLIP
+    hs[H.FS_BREAK] = f_s0
+    hs[H.SLIP_DIR] = slip_dir
+    return hs
 
 
 @helper
@@ -80,8 +105,12 @@ def drive(t, s, tail, e, rt, rv):
 
 
 @kernel
-def rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
-    """Right-hand side for the current modes; fric[i] = friction force on mass i along +x [N]."""
+def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
+    """Right-hand side for the current modes; fric[i] = friction force on mass i along +x [N].
+
+    region[i] codes which smooth piece of the law mass i is on (0 = stuck); the integrator
+    cuts its step where the code changes.
+    """
     n = int(p[P.N])
     M = p[P.M]
     K = p[P.K]
@@ -91,22 +120,27 @@ def rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
     skm = math.sqrt(K * M)
     vu = F0 / skm
     damp = e[E.D_BELT] * skm
+    amp = e[E.AS_AMP]
     tf = temperature_factor(s[tail + TAIL.TEMP], e[E.TEMP_COEF], e[E.TEMP_REF])
+    a_d, f_k0, k_f, w_m, k_r = p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
     power = 0.0
     for i in range(n):
         vi = s[n + i]
         kx = chain_at(s, i, n, K)
-        if mode[i] == STICK:
+        if hs[H.MODE, i] == STICK:
             ds[i] = vb
             ds[n + i] = dvb
             fric[i] = M * dvb + damp * vi + kx
+            region[i] = 0
         else:
             w = (vb - vi) / vu
-            sg = slip_dir[i] if w == 0.0 else (1.0 if w > 0.0 else -1.0)
-            wl = w if w != 0.0 else 1e-300 * sg
-            fsb, a_d, f_k0, k_f, w_m, k_r = fs_break[i], p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
-            fp = f_pwl(wl, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, e[E.AS_AMP]) * tf + e[E.VS_D] * w
-            fm = f_pwl(wl, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, e[E.AS_AMP]) * tf + e[E.VS_D] * w
+            # the mode's own vector field: the law's piece for this slip direction, continued
+            # past w = 0 so that a step overshooting the crossing ends on the far side
+            sg = hs[H.SLIP_DIR, i]
+            u = sg * w
+            fsb = hs[H.FS_BREAK, i]
+            fp = sg * f_pwl_piece(u, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w
+            fm = sg * f_pwl_piece(u, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w
             ap = (F0 * fp - damp * vi - kx) / M
             am = (F0 * fm - damp * vi - kx) / M
             wsel = 1.0 if fp == fm else accel_sign_weight(-sg, ap, am, dvb)
@@ -114,8 +148,13 @@ def rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
             fric[i] = F0 * f
             ds[i] = vi
             ds[n + i] = (F0 * f - damp * vi - kx) / M
+            kin = f_k0 - k_f * min(u, w_m) + k_r * max(u - w_m, 0.0)
+            on_drop = 1 if wsel != -1.0 and fsb - a_d * u > (1.0 + amp) * kin else 0
+            above_min = 1 if u > w_m else 0
+            branch = 0 if wsel == 1.0 else (1 if wsel == -1.0 else 2)
+            region[i] = 1 + above_min + 2 * on_drop + 4 * branch
         power += fric[i] * (vb - vi)
-    ds[tail + TAIL.TS] = 0.0  # stick clocks are exact event times, kept outside the ODE
+    ds[tail + TAIL.TS] = 0.0  # stick clocks are exact event times, kept in hs
     ds[tail + TAIL.Q] = 0.0
     d_temp, d_lag, d_pos = env_rates(power, v_cmd, vb, t, s[tail + TAIL.TEMP], s[tail + TAIL.VLAG], e[E.T_AMB],
                                      e[E.TH_DRIFT], e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])
@@ -126,18 +165,20 @@ def rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
 
 
 @kernel
-def _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, out, k1, k2, k3, k4, tmp, fric):
+def _rk4_step(t, s, h, hs, p, e, rt, rv, out, wk, fric, region):
+    """One RK4 step of size h from (t, s) into out; wk holds 5 scratch rows."""
     ns = s.size
-    rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, k1, fric)
+    k1, k2, k3, k4, tmp = wk[0], wk[1], wk[2], wk[3], wk[4]
+    rhs(t, s, hs, p, e, rt, rv, k1, fric, region)
     for j in range(ns):
         tmp[j] = s[j] + 0.5 * h * k1[j]
-    rhs(t + 0.5 * h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k2, fric)
+    rhs(t + 0.5 * h, tmp, hs, p, e, rt, rv, k2, fric, region)
     for j in range(ns):
         tmp[j] = s[j] + 0.5 * h * k2[j]
-    rhs(t + 0.5 * h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k3, fric)
+    rhs(t + 0.5 * h, tmp, hs, p, e, rt, rv, k3, fric, region)
     for j in range(ns):
         tmp[j] = s[j] + h * k3[j]
-    rhs(t + h, tmp, mode, fs_break, slip_dir, p, e, rt, rv, k4, fric)
+    rhs(t + h, tmp, hs, p, e, rt, rv, k4, fric, region)
     for j in range(ns):
         out[j] = s[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
 
@@ -148,14 +189,14 @@ def _static_limit(ts, q, p, e):
 
 
 @kernel
-def _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
+def _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region):
     """Friction [N] needed to keep mass i stuck at state s, and its rate Delta [N/s]."""
     n = int(p[P.N])
-    saved = mode[i]
-    mode[i] = STICK
-    _, vb, dvb = rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+    saved = hs[H.MODE, i]
+    hs[H.MODE, i] = STICK
+    _, vb, dvb = rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
     need = fric[i]
-    mode[i] = saved
+    hs[H.MODE, i] = saved
     K = p[P.K]
     damp = e[E.D_BELT] * math.sqrt(K * p[P.M])
     # Delta = d/dt (M vb' + D vb + (K x)_i) with x_i' = vb; vb'' neglected (piecewise-linear ramps)
@@ -166,33 +207,74 @@ def _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric):
 
 
 @kernel
-def _events(t, s, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags):
-    """Flag masses whose event fired at state s; return True if any did."""
+def _events(t, s, hs, p, e, rt, rv, ds, fric, region, flags, soft):
+    """Flag masses whose event fired at state s (1 = mode change, 2 = law piece change); any fired?"""
     n = int(p[P.N])
     tail = 2 * n
     any_ev = False
     _, vb, _ = drive(t, s, tail, e, rt, rv)
+    if soft:
+        rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
+        for i in range(n):
+            flags[i] = 2 if region[i] != hs[H.REGION, i] else 0
+            any_ev = any_ev or flags[i] != 0
+    else:
+        for i in range(n):
+            flags[i] = 0
     for i in range(n):
-        flags[i] = 0
-        if mode[i] == SLIP:
-            w = vb - s[n + i]
-            if w * slip_dir[i] < 0.0:  # relative velocity crossed zero
+        if hs[H.MODE, i] == SLIP:
+            if (vb - s[n + i]) * hs[H.SLIP_DIR, i] < 0.0:  # relative velocity crossed zero
                 flags[i] = 1
                 any_ev = True
         else:
-            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
-            if abs(need) > p[P.F0] * _static_limit(t - stick_t0[i], rate, p, e):
+            need, rate = _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region)
+            if abs(need) > p[P.F0] * _static_limit(t - hs[H.STICK_T0, i], rate, p, e):
                 flags[i] = 1
                 any_ev = True
     return any_ev
 
 
 @kernel
-def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, mode, fs_break, slip_dir, stick_t0):
+def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
+    """Apply the mode changes flagged at an event."""
+    n = int(p[P.N])
+    tail = 2 * n
+    _, vb, _ = drive(t, s, tail, e, rt, rv)
+    for i in range(n):
+        if flags[i] != 1:
+            continue
+        if hs[H.MODE, i] == SLIP:
+            # w reached zero: stick if the static limit (fresh contact, t_s = 0) can hold the mass
+            s[n + i] = vb
+            need, rate = _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region)
+            limit = p[P.F0] * _static_limit(0.0, rate, p, e)
+            if abs(need) <= limit:
+                hs[H.MODE, i] = STICK
+                hs[H.STICK_T0, i] = t
+            else:  # passes through zero relative velocity: reversal of slip
+                hs[H.SLIP_DIR, i] = 1.0 if need > 0.0 else -1.0
+                hs[H.FS_BREAK, i] = limit / p[P.F0]
+        else:
+            need, rate = _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region)
+            hs[H.FS_BREAK, i] = _static_limit(t - hs[H.STICK_T0, i], rate, p, e)
+            hs[H.MODE, i] = SLIP
+            # friction needed > 0 means the springs pull back: the mass lags the belt, w > 0
+            hs[H.SLIP_DIR, i] = 1.0 if need > 0.0 else -1.0
+
+
+@kernel
+def _mark_regions(t, s, hs, p, e, rt, rv, ds, fric, region):
+    rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
+    for i in range(region.size):
+        hs[H.REGION, i] = region[i]
+
+
+@kernel
+def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     """Hybrid integration from s0 at t0; returns states, aux (mass 1), friction per mass, modes, n_events.
 
-    The discrete state (mode, fs_break, slip_dir, stick_t0; one entry per mass) belongs to
-    the caller and is updated in place, so a long run can be integrated in chunks.
+    The discrete state ``hs`` (rows H, one column per mass) belongs to the caller and is
+    updated in place, so a long run can be integrated in chunks.
     """
     n = int(p[P.N])
     ns = s0.size
@@ -200,14 +282,11 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, mode, fs_break, slip_dir, s
     states = np.empty((n_out, ns))
     auxs = np.zeros((n_out, N_AUX))
     frics = np.empty((n_out, n))
-    modes_out = np.empty((n_out, n), dtype=np.int64)
+    modes_out = np.empty((n_out, n))
     s = s0.copy()
     flags = np.zeros(n, dtype=np.int64)
-    k1 = np.empty(ns)
-    k2 = np.empty(ns)
-    k3 = np.empty(ns)
-    k4 = np.empty(ns)
-    tmp = np.empty(ns)
+    region = np.zeros(n, dtype=np.int64)
+    wk = np.empty((5, ns))
     trial = np.empty(ns)
     ds = np.empty(ns)
     fric = np.empty(n)
@@ -215,35 +294,42 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, mode, fs_break, slip_dir, s
     t = t0
     for k in range(n_out):
         t_target = t0 + k * n_sub * dt
+        n_soft = 0
         while t_target - t > 1e-12 * dt:
+            soft = n_soft < MAX_SOFT_EVENTS
+            _mark_regions(t, s, hs, p, e, rt, rv, ds, fric, region)
             h = min(dt, t_target - t)
-            _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4, tmp, fric)
-            if _events(t + h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags):
+            _rk4_step(t, s, h, hs, p, e, rt, rv, trial, wk, fric, region)
+            if _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft):
                 lo = 0.0
                 hi = 1.0
                 while (hi - lo) > EVENT_TOL:
                     mid = 0.5 * (lo + hi)
-                    _rk4_step(t, s, mid * h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4,
-                              tmp, fric)
-                    if _events(t + mid * h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric,
-                               flags):
+                    _rk4_step(t, s, mid * h, hs, p, e, rt, rv, trial, wk, fric, region)
+                    if _events(t + mid * h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft):
                         hi = mid
                     else:
                         lo = mid
                 h = hi * h
-                _rk4_step(t, s, h, mode, fs_break, slip_dir, p, e, rt, rv, trial, k1, k2, k3, k4, tmp, fric)
-                _events(t + h, trial, mode, fs_break, slip_dir, stick_t0, p, e, rt, rv, ds, fric, flags)
+                _rk4_step(t, s, h, hs, p, e, rt, rv, trial, wk, fric, region)
+                _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft)
                 t += h
                 s[:] = trial
-                _switch(t, s, mode, fs_break, slip_dir, stick_t0, flags, p, e, rt, rv, ds, fric)
-                n_events += 1
+                hard = False
+                for i in range(n):
+                    hard = hard or flags[i] == 1
+                if hard:
+                    _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region)
+                    n_events += 1
+                else:
+                    n_soft += 1
             else:
                 t += h
                 s[:] = trial
-        _, vb, _ = rhs(t, s, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
+        _, vb, _ = rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
         states[k] = s
         frics[k] = fric
-        modes_out[k] = mode
+        modes_out[k] = hs[H.MODE]
         v_cmd, vb, _ = drive(t, s, tail, e, rt, rv)
         # aux in the common convention: F = mu(V_rel) N with V_rel = body - drive, force on body = -F
         auxs[k, AUX.F] = -fric[0]
@@ -255,34 +341,6 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, mode, fs_break, slip_dir, s
         auxs[k, AUX.N_INST] = p[P.F0]
         auxs[k, AUX.ACC] = ds[n]
     return states, auxs, frics, modes_out, n_events
-
-
-@kernel
-def _switch(t, s, mode, fs_break, slip_dir, stick_t0, flags, p, e, rt, rv, ds, fric):
-    """Apply the mode changes flagged at an event."""
-    n = int(p[P.N])
-    tail = 2 * n
-    _, vb, _ = drive(t, s, tail, e, rt, rv)
-    for i in range(n):
-        if flags[i] == 0:
-            continue
-        if mode[i] == SLIP:
-            # w reached zero: stick if the static limit (fresh contact, t_s = 0) can hold the mass
-            s[n + i] = vb
-            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
-            limit = p[P.F0] * _static_limit(0.0, rate, p, e)
-            if abs(need) <= limit:
-                mode[i] = STICK
-                stick_t0[i] = t
-            else:  # passes through zero relative velocity: reversal of slip
-                slip_dir[i] = 1.0 if need > 0.0 else -1.0
-                fs_break[i] = limit / p[P.F0]
-        else:
-            need, rate = _stick_need(t, s, i, mode, fs_break, slip_dir, p, e, rt, rv, ds, fric)
-            fs_break[i] = _static_limit(t - stick_t0[i], rate, p, e)
-            mode[i] = SLIP
-            # friction needed > 0 means the spring pulls back: the mass lags the belt, w > 0
-            slip_dir[i] = 1.0 if need > 0.0 else -1.0
 
 
 def energy(states: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from .jit import helper, kernel
 from scipy import optimize
 
-from .contact import AUX
+from .contact import AUX, N_AUX
 from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, normal_load, ramp_eval, smooth_sign
 from .effects import static_factor, stick_rates_if_read, temperature_factor
 from .friction import mu_brake
@@ -144,10 +144,28 @@ def energy(states: np.ndarray, p: np.ndarray, geo_weight: float) -> np.ndarray:
 
 
 def equilibrium(p: np.ndarray, geo_weight: float) -> tuple[float, float]:
-    """Static equilibrium (x1, y1) without friction: minimum of the potential near the origin."""
-    res = optimize.minimize(lambda q: potential(q[0], q[1], p, geo_weight), x0=[0.0, 0.0],
-                            method="BFGS", options={"gtol": 1e-12})
-    return float(res.x[0]), float(res.x[1])
+    """Static equilibrium (x1, y1) without friction: where eqs. (5a)/(5b) give zero acceleration."""
+    from .effects import N_E
+
+    pp = p.copy()
+    pp[P.mu0] = 0.0
+    derive(pp)
+    e = np.zeros(N_E)
+    e[E.GEO_WEIGHT] = geo_weight
+    e[E.V_STICK] = e[E.TH_TAU] = e[E.FR_TAU] = e[E.ST_RESET] = 1.0
+    rt = np.array([0.0, 1.0])
+    rv = np.zeros(2)
+    s = np.zeros(N_STATE)
+    ds = np.empty(N_STATE)
+    aux = np.empty(N_AUX)
+
+    def acc(q):
+        s[0], s[2] = q
+        rhs(0.0, s, pp, e, rt, rv, ds, aux)
+        return [ds[1], ds[3]]
+
+    sol = optimize.root(acc, x0=[0.0, 0.0], method="hybr", tol=1e-14)
+    return float(sol.x[0]), float(sol.x[1])
 
 
 def nominal_normal_load(p: np.ndarray, geo_weight: float) -> float:

@@ -65,18 +65,24 @@ def f_pwl_kinetic(w, f_k0, k_fall, w_min, k_rise):
 
 
 @helper
-def f_pwl(w, growing, f_s, alpha_drop, f_k0, k_fall, w_min, k_rise, amp):
-    """Paper 000 law with its two branches, for slipping contact (w != 0).
+def f_pwl_piece(u, growing, f_s, alpha_drop, f_k0, k_fall, w_min, k_rise, amp):
+    """Magnitude of the paper 000 law for slip in one direction, u = |w| (continued linearly below 0).
 
     growing = +1 while |w| increases (after break-away), -1 while it decreases.
     Growing branch: starts at the static limit f_s and drops with slope alpha_drop
     until it meets the kinetic line scaled by (1+amp). Shrinking branch: the kinetic
     line scaled by (1-amp). amp is the accel-sign effect (0 = branches coincide
-    apart from the break-away drop).
+    apart from the break-away drop). For u < 0 (just past a zero crossing) the pieces
+    continue linearly, which is what a hybrid integrator needs to see the crossing.
     """
-    kin = np.abs(f_pwl_kinetic(w, f_k0, k_fall, w_min, k_rise))
-    aw = np.abs(w)
-    up = np.maximum(f_s - alpha_drop * aw, (1.0 + amp) * kin)
+    kin = f_k0 - k_fall * np.minimum(u, w_min) + k_rise * np.maximum(u - w_min, 0.0)
+    up = np.maximum(f_s - alpha_drop * u, (1.0 + amp) * kin)
     down = (1.0 - amp) * kin
     g = (growing + 1.0) * 0.5
-    return np.sign(w) * (g * up + (1.0 - g) * down)
+    return g * up + (1.0 - g) * down
+
+
+@helper
+def f_pwl(w, growing, f_s, alpha_drop, f_k0, k_fall, w_min, k_rise, amp):
+    """Paper 000 law with its two branches for slipping contact (w != 0): odd in w."""
+    return np.sign(w) * f_pwl_piece(np.abs(w), growing, f_s, alpha_drop, f_k0, k_fall, w_min, k_rise, amp)

@@ -183,10 +183,7 @@ class BeltSim(SimRig):
         super().__init__(cfg, e)
         self.n = cfg.mechanics.n_masses
         self.n_mech = 2 * self.n
-        self.mode = np.full(self.n, beltndof.SLIP, dtype=np.int64)
-        self.fs_break = np.full(self.n, self.p[beltndof.P.F_S0])
-        self.slip_dir = np.ones(self.n)
-        self.stick_t0 = np.zeros(self.n)
+        self.hybrid = beltndof.new_hybrid(self.n, self.p[beltndof.P.F_S0], 1.0)
         self.n_events = 0
 
     def params(self) -> np.ndarray:
@@ -202,13 +199,12 @@ class BeltSim(SimRig):
         """Masses at rest at the unstretched position, slipping on a belt already at speed."""
         s = np.zeros(beltndof.n_state(self.n))
         s[self.n_mech + TAIL.VLAG] = v_drive
-        self.slip_dir[:] = 1.0 if v_drive >= 0 else -1.0
+        self.hybrid = beltndof.new_hybrid(self.n, self.p[beltndof.P.F_S0], 1.0 if v_drive >= 0 else -1.0)
         self.tail(s)
         return s
 
     def advance(self, s0, t0, dt, n_sub, n_out, rt, rv) -> Chunk:
-        st, ax, fr, md, nev = beltndof.simulate(s0, t0, dt, n_sub, n_out, self.p, self.e, rt, rv,
-                                                self.mode, self.fs_break, self.slip_dir, self.stick_t0)
+        st, ax, fr, md, nev = beltndof.simulate(s0, t0, dt, n_sub, n_out, self.p, self.e, rt, rv, self.hybrid)
         self.n_events += int(nev)
         return Chunk(st, ax, {"friction_forces": fr, "modes": md})
 
@@ -225,7 +221,7 @@ class BeltSim(SimRig):
         for i in range(self.n):
             out[f"x{i + 1}_dot"] = c.states[:, self.n + i]
             out[f"friction_force_{i + 1}"] = -fr[:, i]  # common convention: force on body = -F
-            out[f"stuck_{i + 1}"] = md[:, i].astype(float)
+            out[f"stuck_{i + 1}"] = md[:, i]
         out["stick_clock"] = np.zeros(len(fr))
         return out
 
