@@ -31,7 +31,7 @@ def _velocity(rec: Recording, name: str) -> np.ndarray:
 
 
 def sim_figure(rec: Recording, path: str | Path, title: str = "") -> None:
-    """Time history, phase plane in three windows, and the paper-001 spectrogram of the main channel."""
+    """Time history, phase plane in two windows, and the paper-001 spectrogram of the main channel."""
     name, label = MAIN_CHANNEL.get(rec.rig or "", ("x1", "x1"))
     t = rec.t
     x = rec.channels[name]
@@ -64,7 +64,7 @@ def sim_figure(rec: Recording, path: str | Path, title: str = "") -> None:
     f, ts, pxx = paper_spectrogram(t, x)
     axs.pcolormesh(ts, f, 10 * np.log10(pxx + 1e-30), shading="auto", cmap="viridis")
     axs.set_ylim(0, 25)
-    axs.set_title("spectrogram of x (512/256, 100 Hz) [dB]", fontsize=9)
+    axs.set_title(f"spectrogram of {name} (512/256, 100 Hz) [dB]", fontsize=9)
     axs.set_xlabel("t [s]")
     axs.set_ylabel("f [Hz]")
     fig.suptitle(title or f"{rec.rig} simulation")

@@ -56,3 +56,58 @@ def test_bad_input_one_line_exit_2_no_file(tmp_path):
         assert r.stderr.startswith("daq: error: --effect:")
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_sim_with_ramp_file_and_limits(tmp_path):
+    ramp = tmp_path / "ramp.toml"
+    ramp.write_text('start_m_per_s = 0.05\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n'
+                    '[[segment]]\nkind = "linear"\nduration_s = 1.0\nto_m_per_s = 0.1\n')
+    out = tmp_path / "r.csv"
+    r = daq("sim", "brake-2dof", "--ramp", str(ramp), "--no-figure", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    from daq.io.interchange import read_csv
+
+    rec = read_csv(out)
+    assert rec.t[-1] == 2.0  # duration taken from the ramp
+    np.testing.assert_allclose(rec.channels["vb_set"][rec.t <= 1.0], 0.05, atol=1e-9)
+    np.testing.assert_allclose(rec.channels["vb_set"][-1], 0.1, atol=1e-9)
+    too_fast = tmp_path / "fast.toml"
+    too_fast.write_text('start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.1\nto_m_per_s = 0.4\n')
+    r = daq("sim", "brake-2dof", "--ramp", str(too_fast), "-o", str(tmp_path / "f.csv"))
+    assert r.returncode == 2
+    assert r.stderr.strip() == (f"daq: error: {too_fast}: acceleration: 4 m/s^2 at t=0 s exceeds the rig limit "
+                                "0.5 m/s^2")
+    assert not (tmp_path / "f.csv").exists()
+
+
+def test_sim_custom_rig_file_three_masses(tmp_path):
+    import tomllib
+
+    import tomli_w
+
+    from daq.config import CONFIG_DIR
+
+    data = tomllib.loads((CONFIG_DIR / "belt-ndof.toml").read_text())
+    data["mechanics"]["n_masses"] = 3
+    cfg = tmp_path / "belt3.toml"
+    cfg.write_text(tomli_w.dumps(data))
+    out = tmp_path / "b.h5"
+    r = daq("sim", str(cfg), "--duration", "3", "--no-figure", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    with h5py.File(out) as f:
+        assert {"x1", "x2", "x3", "vb", "vb_set", "temp"} == set(f["channels"])
+        assert len(json.loads(f.attrs["modes_hz"])["chain"]) == 3
+    data["mechanics"]["n_masses"] = 4
+    cfg.write_text(tomli_w.dumps(data))
+    r = daq("sim", str(cfg), "-o", str(out.with_name("c.h5")))
+    assert r.returncode == 2 and "mechanics.n_masses" in r.stderr
+
+
+def test_bench_sim_contract_keys():
+    """The benchmark's JSON keys and its agreement with the solve_ivp baseline (short baseline here)."""
+    from daq.bench import bench_sim
+
+    r = bench_sim(repeat=1, baseline_duration=1.0)
+    assert r["realtime_factor"] > 0 and r["speedup_vs_solve_ivp"] > 0
+    assert r["max_abs_dev_x1_first_5s_m"] < 5e-5  # same equations, two integrators: microns apart
+    assert r["baseline_nfev"] > 1000

@@ -88,6 +88,9 @@ def effect_vector(cfg: RigConfig, requests: list[EffectRequest] = (), seed: bool
             apply_effect(e, cfg.rig, name, vals, f"rig config {cfg.rig}")
             active[name] = dict(vals)
     for req in requests:
+        spec = CATALOG[req.name]
+        if cfg.rig not in spec.rigs:
+            raise InputError(source, req.name, f"does not apply to {cfg.rig} (applies to {', '.join(spec.rigs)})")
         vals = dict(req.values)
         if not vals:
             vals = dict(cfg.effects.get(req.name) or cfg.seed_effects.get(req.name) or {})

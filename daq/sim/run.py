@@ -63,7 +63,7 @@ def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[n
     rv = np.ascontiguousarray(rv, dtype=float)
 
     chunks: list[Chunk] = []
-    per_chunk = max(2, int(CHUNK_S * rate))
+    per_chunk = max(2, int(CHUNK_S * rate)) if progress else n_total  # chunks only to report progress
     done = 0
     t0 = 0.0
     while done < n_total:
@@ -77,8 +77,11 @@ def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[n
         t0 = (done - 1) / rate
         if progress:
             progress(min(t0, duration), duration)
-    chunk = Chunk(np.concatenate([c.states for c in chunks]), np.concatenate([c.aux for c in chunks]),
-                  {k: np.concatenate([c.extra[k] for c in chunks]) for k in chunks[0].extra})
+    if len(chunks) == 1:
+        chunk = chunks[0]
+    else:
+        chunk = Chunk(np.concatenate([c.states for c in chunks]), np.concatenate([c.aux for c in chunks]),
+                      {k: np.concatenate([c.extra[k] for c in chunks]) for k in chunks[0].extra})
     t = np.arange(n_total) / rate
     true_ch = sim.channels(t, chunk)
     rng = np.random.default_rng(seed)
