@@ -57,7 +57,7 @@ def sim_figure(rec: Recording, path: str | Path, title: str = "") -> None:
             axp = fig.add_subplot(gs[2, k])
             m = (t >= a) & (t <= b)
             axp.plot(x[m], v[m], lw=0.5)
-            axp.set_title(f"phase plane {a:.0f} < t < {b:.0f} s", fontsize=9)
+            axp.set_title(f"phase plane {a:.1f} < t < {b:.1f} s", fontsize=9)
             axp.set_xlabel(label)
             axp.set_ylabel(f"d{name}/dt")
     axs = fig.add_subplot(gs[2, 2])
