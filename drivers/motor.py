@@ -1,0 +1,260 @@
+"""The belt/drum motor regulator family: speed set points, readback, stops, and a heartbeat.
+
+``MotorDrive`` is the family interface; ``SerialMotorRegulator`` speaks the line
+protocol of docs/protocols/motor-regulator.md over any pyserial URL. Safety lives
+in the regulator (its watchdog stops the belt when heartbeats stop, its limits
+refuse set points), so the driver only has to keep the heartbeat going while its
+process is alive, and to reconnect when the port comes back.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from abc import ABC, abstractmethod
+
+import serial
+from pydantic import BaseModel, ConfigDict, Field
+
+from .base import Backoff, BackoffCfg, DriverState, EventLog
+from .motor_protocol import LineBuffer, ProtocolError, Status, decode, encode
+
+
+class MotorError(RuntimeError):
+    """The regulator refused a command (``ERR <code> <text>``)."""
+
+    def __init__(self, code: int, text: str, command: str) -> None:
+        self.code = code
+        self.text = text
+        self.command = command
+        super().__init__(f"regulator refused {command!r}: ERR {code} {text}")
+
+
+class MotorUnavailable(ConnectionError):
+    """The regulator cannot be reached right now; the driver keeps reconnecting."""
+
+
+class MotorCfg(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    url: str = Field(description="pyserial URL or device path")
+    baudrate: int = Field(115200, gt=0)
+    timeout_s: float = Field(0.25, gt=0, description="reply timeout per request")
+    heartbeat_s: float = Field(0.1, gt=0, description="heartbeat period; must be well below watchdog_ms")
+    watchdog_ms: int = Field(500, ge=50, le=10000, description="regulator stops the belt after this silence")
+    retries: int = Field(2, ge=0, description="re-sends of a request whose reply was corrupted")
+    backoff: BackoffCfg = BackoffCfg()
+
+
+class MotorDrive(ABC):
+    """What the daemon needs from any motor regulator."""
+
+    @abstractmethod
+    def enable(self) -> None: ...
+
+    @abstractmethod
+    def disable(self) -> None: ...
+
+    @abstractmethod
+    def set_speed(self, v: float) -> None:
+        """Set point [m/s]; the regulator ramps toward it under its acceleration limit."""
+
+    @abstractmethod
+    def set_accel(self, a: float) -> None: ...
+
+    @abstractmethod
+    def read_speed(self) -> tuple[float, float]:
+        """(measured, set point) [m/s]."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Controlled ramp to rest."""
+
+    @abstractmethod
+    def estop(self) -> None:
+        """Emergency stop, latched until reset()."""
+
+    @abstractmethod
+    def reset(self) -> None: ...
+
+    @abstractmethod
+    def status(self) -> Status: ...
+
+
+class SerialMotorRegulator(MotorDrive):
+    def __init__(self, cfg: MotorCfg, name: str = "motor") -> None:
+        self.cfg = cfg
+        self.name = name
+        self.state = DriverState.CLOSED
+        self.log = EventLog(name)
+        self.frame_errors = 0
+        self.reconnects = 0
+        self._port: serial.SerialBase | None = None
+        self._lines = LineBuffer()
+        self._lock = threading.RLock()
+        self._backoff = Backoff(cfg.backoff)
+        self._hb_seq = 0
+        self._hb_stop = threading.Event()
+        self._hb_thread: threading.Thread | None = None
+        self._lost_at: float | None = None
+
+    # --- connection
+    def open(self, heartbeat: bool = True) -> None:
+        """Connect, configure the watchdog, start the heartbeat. Raises MotorUnavailable if absent."""
+        self.state = DriverState.CONNECTING
+        with self._lock:
+            self._connect()
+        if heartbeat:
+            self.start_heartbeat()
+
+    def close(self) -> None:
+        """Stop the heartbeat and release the port (the regulator's watchdog then stops the belt)."""
+        self.stop_heartbeat()
+        with self._lock:
+            self._drop_port()
+            self.state = DriverState.CLOSED
+
+    def _connect(self) -> None:
+        try:
+            self._port = serial.serial_for_url(self.cfg.url, baudrate=self.cfg.baudrate, timeout=0.01,
+                                               write_timeout=self.cfg.timeout_s)
+        except (serial.SerialException, OSError) as exc:
+            self._port = None
+            self._backoff.failed(time.monotonic())
+            self._mark_lost(f"cannot open: {exc}")
+            raise MotorUnavailable(str(exc)) from None
+        self._lines.clear()
+        self._port.reset_input_buffer()
+        was_lost = self._lost_at is not None
+        self._backoff.succeeded()
+        self._exchange(f"WDT {self.cfg.watchdog_ms}")
+        if was_lost:
+            self.reconnects += 1
+            self.log.emit("gap", "regulator unreachable", gap_s=time.monotonic() - self._lost_at)
+            self._lost_at = None
+        self.log.emit("connected", "reconnected" if was_lost else "opened")
+        self.state = DriverState.CONNECTED  # last: whoever sees CONNECTED also sees the events
+
+    def _drop_port(self) -> None:
+        if self._port is not None:
+            try:
+                self._port.close()
+            except Exception:  # noqa: BLE001 - closing a dead port must not raise
+                pass
+        self._port = None
+
+    def _mark_lost(self, why: str) -> None:
+        if self.state != DriverState.RECONNECTING:
+            self.state = DriverState.RECONNECTING
+            self._lost_at = time.monotonic()
+            self.log.emit("disconnected", why)
+
+    def _ensure(self) -> None:
+        if self.state == DriverState.CLOSED:
+            raise RuntimeError(f"{self.name}: closed; call open() first")
+        if self._port is None:
+            if not self._backoff.ready(time.monotonic()):
+                raise MotorUnavailable(f"{self.name}: reconnecting")
+            self._connect()
+
+    # --- request/reply
+    def _exchange(self, body: str) -> str:
+        """Send one command and return the reply body; retries corrupted replies."""
+        assert self._port is not None
+        for _ in range(self.cfg.retries + 1):
+            try:
+                self._port.write(encode(body))
+                reply = self._read_reply()
+            except (serial.SerialException, OSError) as exc:
+                self._drop_port()
+                self._backoff.failed(time.monotonic())
+                self._mark_lost(f"{type(exc).__name__}: {exc}")
+                raise MotorUnavailable(str(exc)) from None
+            if reply is not None:
+                if reply.startswith("ERR "):
+                    code, _, text = reply[4:].partition(" ")
+                    raise MotorError(int(code), text, body)
+                return reply
+        raise MotorUnavailable(f"{self.name}: no valid reply to {body!r}")
+
+    def _read_reply(self) -> str | None:
+        deadline = time.monotonic() + self.cfg.timeout_s
+        assert self._port is not None
+        while time.monotonic() < deadline:
+            data = self._port.read(self._port.in_waiting or 1)
+            for line in self._lines.feed(data):
+                try:
+                    return decode(line)
+                except ProtocolError as exc:
+                    self.frame_errors += 1
+                    self.log.emit("frame_error", str(exc))
+                    return None
+        self.frame_errors += 1
+        self.log.emit("frame_error", "reply timeout")
+        return None
+
+    def request(self, body: str) -> str:
+        with self._lock:
+            self._ensure()
+            return self._exchange(body)
+
+    # --- the family interface
+    def enable(self) -> None:
+        self.request("ENA")
+
+    def disable(self) -> None:
+        self.request("DIS")
+
+    def set_speed(self, v: float) -> None:
+        self.request(f"SPD {v:.5f}")
+
+    def set_accel(self, a: float) -> None:
+        self.request(f"ACC {a:.5f}")
+
+    def read_speed(self) -> tuple[float, float]:
+        parts = self.request("SPD?").split()
+        if len(parts) != 3 or parts[0] != "SPD":
+            raise MotorUnavailable(f"bad SPD? reply {parts!r}")
+        return float(parts[1]), float(parts[2])
+
+    def stop(self) -> None:
+        self.request("STOP")
+
+    def estop(self) -> None:
+        self.request("ESTOP")
+
+    def reset(self) -> None:
+        self.request("RST")
+
+    def status(self) -> Status:
+        st = Status.parse(self.request("STAT?"))
+        if st.state == "WATCHDOG":
+            self.log.emit("watchdog", "regulator watchdog has stopped the belt")
+        return st
+
+    def identify(self) -> str:
+        return self.request("ID?")
+
+    # --- heartbeat
+    def start_heartbeat(self) -> None:
+        if self._hb_thread is not None:
+            return
+        self._hb_stop.clear()
+        self._hb_thread = threading.Thread(target=self._heartbeat, name=f"{self.name}-heartbeat", daemon=True)
+        self._hb_thread.start()
+
+    def stop_heartbeat(self) -> None:
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(timeout=2.0)
+            self._hb_thread = None
+
+    def _heartbeat(self) -> None:
+        while not self._hb_stop.wait(self.cfg.heartbeat_s):
+            self._hb_seq = (self._hb_seq + 1) % 10000
+            try:
+                reply = self.request(f"HB {self._hb_seq}")
+            except (MotorUnavailable, MotorError):
+                continue  # reconnecting; the regulator's watchdog covers the gap
+            if reply != f"HB {self._hb_seq}":
+                self.frame_errors += 1
+                self.log.emit("frame_error", f"heartbeat echo {reply!r}")

@@ -1,0 +1,178 @@
+"""Motor regulator: protocol, and the driver against the simulated regulator over a real pty."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from daq.config import load_rig
+from drivers.base import DriverState
+from drivers.motor import MotorCfg, MotorError, MotorUnavailable, SerialMotorRegulator
+from drivers.motor_protocol import ERR_LATCHED, ERR_LIMIT, ERR_STATE, LineBuffer, ProtocolError, decode, encode
+from sim_backends.motor import SimMotorRegulator
+from sim_backends.pty_port import PtyPort
+from sim_backends.realtime import RealtimeRig
+
+
+def wait_for(cond, timeout=5.0, period=0.01):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if cond():
+            return True
+        time.sleep(period)
+    return cond()
+
+
+# --------------------------------------------------------------------------- protocol
+
+
+def test_line_checksum_round_trip_and_rejection():
+    raw = encode("SPD 0.12000")
+    assert raw.endswith(b"\r\n") and raw[-5:-2].startswith(b"*")
+    assert decode(raw) == "SPD 0.12000"
+    for i in range(len(raw) - 2):  # any single flipped bit in the body or checksum is refused
+        bad = bytearray(raw)
+        bad[i] ^= 0x04
+        with pytest.raises(ProtocolError):
+            decode(bytes(bad))
+    with pytest.raises(ProtocolError):
+        decode(b"SPD 0.1\r\n")
+
+
+def test_line_buffer_splits_and_bounds_garbage():
+    lb = LineBuffer(max_line=16)
+    assert lb.feed(b"A*41\r\nB*4") == [b"A*41\r\n"]
+    assert lb.feed(b"2\r\n") == [b"B*42\r\n"]
+    assert lb.feed(b"x" * 40) == [] and lb.discarded == 40
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture()
+def bench(tmp_path):
+    """A brake rig running in real time, its regulator on a pty, and the driver on the pty's path."""
+    rig = RealtimeRig(load_rig("brake-2dof"))
+    rig.start()
+    port = PtyPort(tmp_path / "rn12")
+    sim = SimMotorRegulator(rig, port).start()
+    drv = SerialMotorRegulator(MotorCfg(url=str(tmp_path / "rn12"), watchdog_ms=300, heartbeat_s=0.05))
+    drv.open()
+    yield rig, port, sim, drv
+    drv.close()
+    sim.stop()
+    port.close()
+    rig.stop()
+
+
+def test_commands_drive_the_simulated_belt(bench):
+    rig, port, sim, drv = bench
+    assert drv.identify().startswith("ID ")
+    with pytest.raises(MotorError) as exc:
+        drv.set_speed(0.1)  # not enabled
+    assert exc.value.code == ERR_STATE
+    drv.enable()
+    drv.set_speed(0.1)
+    assert wait_for(lambda: abs(rig.belt_speed - 0.1) < 1e-6, timeout=3.0)
+    measured, setpoint = drv.read_speed()
+    assert setpoint == 0.1 and abs(measured - 0.1) < 0.005  # tachometer noise 1 mm/s
+    with pytest.raises(MotorError) as exc:
+        drv.set_speed(0.6)  # above the rig's 0.5 m/s: refused by the regulator itself
+    assert exc.value.code == ERR_LIMIT
+    assert drv.read_speed()[1] == 0.1
+    drv.stop()
+    assert wait_for(lambda: rig.belt_speed < 1e-9, timeout=3.0)
+    assert wait_for(lambda: drv.status().state == "DISABLED", timeout=2.0)
+
+
+def test_acceleration_limit_shapes_the_ramp(bench):
+    rig, port, sim, drv = bench
+    drv.enable()
+    drv.set_accel(0.2)
+    t0 = time.monotonic()
+    drv.set_speed(0.2)
+    assert wait_for(lambda: rig.belt_speed > 0.2 - 1e-6, timeout=4.0)
+    took = time.monotonic() - t0
+    assert took > 0.8  # 0.2 m/s at 0.2 m/s^2 takes 1 s of (real) time
+    with pytest.raises(MotorError):
+        drv.set_accel(5.0)
+
+
+def test_watchdog_brings_belt_to_rest_when_heartbeats_stop(bench):
+    rig, port, sim, drv = bench
+    drv.enable()
+    drv.set_speed(0.15)
+    assert wait_for(lambda: rig.belt_speed > 0.149, timeout=3.0)
+    time.sleep(0.5)  # heartbeats keep it running well past the 300 ms watchdog
+    assert sim.state == "RUNNING" and rig.belt_speed > 0.149
+    drv.stop_heartbeat()  # the daemon dies: nothing talks to the regulator any more
+    assert wait_for(lambda: sim.state == "WATCHDOG", timeout=1.0)
+    assert wait_for(lambda: rig.belt_speed < 1e-9, timeout=2.0)
+    assert sim.watchdog_trips == 1
+    with pytest.raises(MotorError) as exc:
+        drv.set_speed(0.1)
+    assert exc.value.code == ERR_LATCHED
+    drv.reset()
+    drv.enable()
+    drv.set_speed(0.05)
+    assert wait_for(lambda: rig.belt_speed > 0.049, timeout=2.0)
+
+
+def test_estop_is_faster_than_stop_and_latched(bench):
+    rig, port, sim, drv = bench
+    drv.enable()
+    drv.set_speed(0.2)
+    assert wait_for(lambda: rig.belt_speed > 0.199, timeout=3.0)
+    t0 = time.monotonic()
+    drv.estop()
+    assert wait_for(lambda: rig.belt_speed < 1e-9, timeout=2.0)
+    assert time.monotonic() - t0 < 0.3  # 0.2 m/s at 2 m/s^2: 0.1 s (a controlled stop takes 0.4 s)
+    with pytest.raises(MotorError) as exc:
+        drv.enable()
+    assert exc.value.code == ERR_LATCHED
+    drv.reset()
+    drv.enable()
+
+
+def test_corrupted_command_is_refused_not_executed(bench):
+    rig, port, sim, drv = bench
+    drv.enable()
+    with drv._lock:  # a command damaged on the wire: the regulator must not act on it
+        drv._port.write(b"SPD 0.40000*00\r\n")
+        time.sleep(0.1)
+        drv._port.reset_input_buffer()
+    time.sleep(0.2)
+    assert sim.checksum_errors == 1
+    assert rig.belt_speed == 0.0 and sim.setpoint == 0.0
+
+
+def test_corrupted_replies_are_retried_and_counted(bench):
+    rig, port, sim, drv = bench
+    sim.corrupt_replies = 1
+    drv.stop_heartbeat()
+    drv.enable()  # first reply corrupted, the re-sent command's reply is good
+    assert drv.frame_errors == 1
+    assert sim.state == "RUNNING"
+
+
+def test_unplug_and_replug_recover_without_restart(bench):
+    rig, port, sim, drv = bench
+    drv.enable()
+    drv.set_speed(0.1)
+    assert wait_for(lambda: rig.belt_speed > 0.099, timeout=3.0)
+    drv.log.events()
+    port.unplug()  # cable pulled: the regulator hears nothing, its watchdog stops the belt
+    assert wait_for(lambda: drv.state == DriverState.RECONNECTING, timeout=2.0)
+    with pytest.raises(MotorUnavailable):
+        drv.read_speed()
+    assert wait_for(lambda: rig.belt_speed < 1e-9, timeout=2.0) and sim.state == "WATCHDOG"
+    port.replug()
+    assert wait_for(lambda: drv.state == DriverState.CONNECTED, timeout=5.0)  # the heartbeat reconnects
+    kinds = [e.kind for e in drv.log.events()]
+    assert kinds.index("disconnected") < kinds.index("connected") and "gap" in kinds
+    drv.reset()
+    drv.enable()
+    drv.set_speed(0.05)
+    assert wait_for(lambda: rig.belt_speed > 0.049, timeout=2.0)
+    assert drv.reconnects == 1
