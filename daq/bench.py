@@ -114,7 +114,22 @@ def bench_sim(repeat: int = 5, baseline_duration: float = SEED_DURATION) -> dict
     }
 
 
-BENCHES = {"sim": bench_sim}
+# name -> (module, benchmark function, report formatter); imported only when asked for
+BENCHES: dict[str, tuple[str, str, str]] = {
+    "sim": ("daq.bench", "bench_sim", "format_report"),
+    "can": ("daq.bench_can", "bench_can", "format_can"),
+    "serial": ("daq.bench_serial", "bench_serial", "format_serial"),
+}
+
+
+def run_bench(name: str) -> tuple[dict, str]:
+    """Run a registered benchmark; returns (JSON-able result, human report)."""
+    import importlib
+
+    mod_name, fn_name, fmt_name = BENCHES[name]
+    mod = importlib.import_module(mod_name)
+    result = getattr(mod, fn_name)()
+    return result, getattr(mod, fmt_name)(result)
 
 
 def format_report(r: dict) -> str:

@@ -127,16 +127,15 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import BENCHES, format_report
+    from .bench import BENCHES, run_bench
 
-    fn = BENCHES.get(args.name)
-    if fn is None:
+    if args.name not in BENCHES:
         raise InputError("bench", args.name, f"unknown benchmark (have: {', '.join(BENCHES)})")
-    result = fn()
+    result, report = run_bench(args.name)
     if args.json:
         _print_json(result)
     else:
-        print(format_report(result))
+        print(report)
     return 0
 
 

@@ -35,7 +35,7 @@ class Sample:
     channel: str
     value: float
     device_time: float  # device clock, unwrapped [s]
-    host_time: float  # time.monotonic() when the frame was decoded [s]
+    host_time: float  # host monotonic time of reception [s] (time.monotonic() base)
     seq: int = -1  # the frame's sequence counter, -1 if the protocol has none
 
 
@@ -87,7 +87,8 @@ class ClockSync:
 
     Host receive times carry a positive, jittery delay. In each bin of device time we keep
     only the pair with the smallest delay (the lower envelope), and fit a line through
-    those minima: host = offset + (1 + drift) * device. Robust to queueing delays; memory
+    those minima: host = offset + device / (1 + drift), so ``drift`` is the device clock's
+    rate error (+300e-6 = the device runs 300 ppm fast). Robust to queueing delays; memory
     is bounded by ``max_bins``.
     """
 
@@ -111,14 +112,14 @@ class ClockSync:
         d, h = np.array(list(self._bins.values())).T
         d0 = d[0]
         slope, icpt = np.polyfit(d - d0, h, 1)
-        return float(icpt - slope * d0), float(slope - 1.0)
+        return float(icpt - slope * d0), float(1.0 / slope - 1.0)
 
     def to_host(self, device_t: float) -> float | None:
         est = self.estimate()
         if est is None:
             return None
         offset, drift = est
-        return offset + (1.0 + drift) * device_t
+        return offset + device_t / (1.0 + drift)
 
 
 class Unwrapper:

@@ -70,6 +70,11 @@ class RealtimeRig:
         tick = self.last_tick
         return float(tick.truth["v_drive"][-1]) if tick is not None else 0.0
 
+    @property
+    def running(self) -> bool:
+        """True while the rig advances in real time on its own thread (not stepped by a caller)."""
+        return self._thread is not None
+
     def subscribe(self, fn: Listener) -> None:
         self._listeners.append(fn)
 
