@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -74,6 +74,52 @@ class IntegratorCfg(Strict):
 
 class SensorsCfg(Strict):
     rate_Hz: float = Field(gt=0.0)
+
+
+class MotorInstrument(Strict):
+    """The belt/drum motor regulator on a serial line (docs/protocols/motor-regulator.md)."""
+
+    family: Literal["motor-regulator"]
+    url: str = Field(min_length=1, description="pyserial URL or device path")
+    baudrate: int = Field(115200, gt=0)
+    watchdog_ms: int = Field(500, ge=50, le=10000)
+    heartbeat_s: float = Field(0.1, gt=0)
+    enabled: bool = True
+
+
+class CanInstrument(Strict):
+    """CAN sensors described by drivers/rig_sensors.dbc, on any python-can interface."""
+
+    family: Literal["can-sensors"]
+    interface: str = Field(min_length=1, description="python-can interface, e.g. socketcan, pcan, kvaser, virtual")
+    channel: str = Field(min_length=1)
+    bitrate: int | None = Field(None, gt=0)
+    channels: list[str] = Field(min_length=1, description="interchange channels carried on this bus")
+    enabled: bool = True
+
+
+class StreamInstrument(Strict):
+    """A high-rate binary sensor stream on a serial line (docs/protocols/serial-stream.md)."""
+
+    family: Literal["serial-stream"]
+    url: str = Field(min_length=1)
+    baudrate: int = Field(921600, gt=0)
+    channels: list[str] = Field(min_length=1)
+    enabled: bool = True
+
+
+class ThermocoupleInstrument(Strict):
+    """The slow thermocouple meter on a serial line (docs/protocols/thermocouple.md)."""
+
+    family: Literal["thermocouple"]
+    url: str = Field(min_length=1)
+    baudrate: int = Field(9600, gt=0)
+    poll_hz: float = Field(10.0, gt=0, le=50)
+    enabled: bool = True
+
+
+Instrument = Annotated[Union[MotorInstrument, CanInstrument, StreamInstrument, ThermocoupleInstrument],
+                       Field(discriminator="family")]
 
 
 class BrakeMechanics(Strict):
@@ -144,9 +190,24 @@ class RigBase(Strict):
     integrator: IntegratorCfg
     sensors: SensorsCfg
     channels: dict[str, ChannelCfg]
+    instruments: dict[str, Instrument] = {}
     seed_effects: dict[str, dict[str, float]] = {}
     effects: dict[str, dict[str, float]] = {}
     chosen: list[str] = Field(default_factory=list, description="which values are our choice, not the paper's")
+
+    @model_validator(mode="after")
+    def _instruments_consistent(self) -> "RigBase":
+        carried: dict[str, str] = {}
+        for name, inst in self.instruments.items():
+            for ch in getattr(inst, "channels", []):
+                if ch not in self.channels:
+                    raise _FieldError(f"instruments.{name}.channels", f"{ch!r} is not a channel of this rig")
+                if inst.enabled and ch in carried:
+                    raise _FieldError(f"instruments.{name}.channels",
+                                      f"{ch!r} is also carried by enabled instrument {carried[ch]!r}")
+                if inst.enabled:
+                    carried[ch] = name
+        return self
 
     @model_validator(mode="after")
     def _effects_known(self) -> "RigBase":

@@ -46,6 +46,9 @@ class RealtimeRig:
         self.time_scale = time_scale
         self.tick_s = tick_s
         self.state = self.sim.initial_state(0.0)  # belt at rest until the regulator drives it
+        # compile (or load) the integrator now, on a throwaway copy, not in the first real-time tick
+        make_sim(cfg, self.sim.e).advance(self.state, 0.0, self.h, self.n_sub, 2, np.array([0.0, 1.0]),
+                                          np.zeros(2))
         self.t = 0.0
         self.v_cmd = 0.0  # the drive's commanded surface speed (after the regulator's ramp limiter)
         self.target = 0.0

@@ -24,7 +24,7 @@ _rk4_cache: dict[str, object] = {}
 def _rk4(module):
     """One compiled integrator per rig module per process."""
     if module.RIG_ID not in _rk4_cache:
-        _rk4_cache[module.RIG_ID] = make_rk4(module.rhs)
+        _rk4_cache[module.RIG_ID] = make_rk4(module.rhs, module.RIG_ID.replace("-", "_"))
     return _rk4_cache[module.RIG_ID]
 
 
