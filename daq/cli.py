@@ -123,6 +123,25 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- import / export
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from .io.importer import import_file
+
+    import_file(args.file, args.rig, args.output)
+    print(f"imported {args.file} -> {args.output}", file=sys.stderr)
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .io.importer import export_csv
+
+    export_csv(args.file, args.output)
+    print(f"exported {args.file} -> {args.output}", file=sys.stderr)
+    return 0
+
+
 # ----------------------------------------------------------------------------- bench
 
 
@@ -180,6 +199,17 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--no-figure", action="store_true", help="do not write OUT.png")
     sim.add_argument("-o", "--output", required=True, help="OUT.h5 or OUT.csv")
     sim.set_defaults(func=cmd_sim)
+
+    imp = sub.add_parser("import", help="bring a CSV or LabVIEW TDMS file into the recording format")
+    imp.add_argument("file")
+    imp.add_argument("--rig", required=True)
+    imp.add_argument("-o", "--output", required=True, help="OUT.h5")
+    imp.set_defaults(func=cmd_import)
+
+    exp = sub.add_parser("export", help="write a recording as interchange CSV")
+    exp.add_argument("file")
+    exp.add_argument("-o", "--output", required=True, help="OUT.csv")
+    exp.set_defaults(func=cmd_export)
 
     bench = sub.add_parser("bench", help="run a benchmark against its same-run baseline")
     bench.add_argument("name")

@@ -1,11 +1,27 @@
 """The measurement interchange format: CSV (``t`` first, SI units) and HDF5 recordings.
 
-HDF5 layout (readable by h5py, pandas via h5py, and MATLAB's h5read):
+Two HDF5 layouts, both readable by h5py, pandas via h5py, and MATLAB's h5read:
+
+Simple (``format = "friction-daq recording 1"``: simulations, conversions):
     /t                      float64 [s]
     /channels/<name>        float64, attribute ``unit``
     /truth/<name>           simulator ground truth (simulations only)
+    /events                 optional event table (as below)
     root attributes         rig, software, created, source, rig_config (TOML text), ramp, ...
 Files are written to a temporary name and renamed, so a failed write leaves nothing behind.
+
+Run (``format = "friction-daq run 1"``, written live by ``daq.recorder``):
+    /streams/<stream>/t             float64 host monotonic time [s]
+    /streams/<stream>/device_t      float64 device time [s] (if the stream has it)
+    /streams/<stream>/<channel>     the stream's dtype, attribute ``unit``
+        stream attributes           source, rate_hz (nan if irregular), channels, dtype
+    /events                 compound (host_time f8, kind str, source str, detail str,
+                            count i8 (-1 = none), gap_s f8 (nan = none))
+    root attributes         format, rig, software, created (UTC ISO), start_host_time,
+                            rig_config (TOML), ramp (text, may be empty), ...
+``read_h5`` puts every stream's channels on the fastest stream's time base (others
+interpolated linearly, NaN outside their span and across their gaps), with ``t`` counted
+from ``start_host_time``; a file left unclean by a killed recorder opens without any step.
 """
 
 from __future__ import annotations
@@ -23,6 +39,17 @@ import h5py
 import numpy as np
 
 from ..errors import InputError
+from . import h5recover
+
+FORMAT_SIMPLE = "friction-daq recording 1"
+FORMAT_RUN = "friction-daq run 1"
+STREAM_RESERVED = ("t", "device_t")  # dataset names in a stream group that are not channels
+GAP_PERIODS = 5.0  # a slower stream is not interpolated across holes longer than this many sample periods
+
+EVENT_STR = h5py.string_dtype("utf-8")
+EVENT_DTYPE = np.dtype([("host_time", "f8"), ("kind", EVENT_STR), ("source", EVENT_STR), ("detail", EVENT_STR),
+                        ("count", "i8"), ("gap_s", "f8")])
+EVENT_FIELDS = ("host_time", "kind", "source", "detail", "count", "gap_s")
 
 
 @dataclass
@@ -33,6 +60,31 @@ class Recording:
     units: dict[str, str] = field(default_factory=dict)
     meta: dict[str, object] = field(default_factory=dict)
     truth: dict[str, np.ndarray] = field(default_factory=dict)
+    events: list[dict[str, object]] = field(default_factory=list)  # see events_from_array
+
+
+def events_to_array(events: list[dict[str, object]]) -> np.ndarray:
+    """Event dicts (keys as EVENT_FIELDS; count/gap_s may be None) as rows of the /events table."""
+    arr = np.empty(len(events), dtype=EVENT_DTYPE)
+    for i, ev in enumerate(events):
+        count, gap = ev.get("count"), ev.get("gap_s")
+        arr[i] = (float(ev.get("host_time", np.nan)), str(ev.get("kind", "")), str(ev.get("source", "")),
+                  str(ev.get("detail", "")), -1 if count is None else int(count), np.nan if gap is None else float(gap))
+    return arr
+
+
+def events_from_array(arr: np.ndarray, t0: float = 0.0) -> list[dict[str, object]]:
+    """Rows of an /events table as dicts; ``t`` is host_time on the recording's time base (minus ``t0``)."""
+    def text(v: object) -> str:
+        return v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+
+    out: list[dict[str, object]] = []
+    for row in arr:
+        count, gap = int(row["count"]), float(row["gap_s"])
+        out.append({"t": float(row["host_time"]) - t0, "host_time": float(row["host_time"]), "kind": text(row["kind"]),
+                    "source": text(row["source"]), "detail": text(row["detail"]),
+                    "count": None if count < 0 else count, "gap_s": None if np.isnan(gap) else gap})
+    return out
 
 
 @contextmanager
@@ -84,11 +136,11 @@ def write_h5(rec: Recording, path: str | Path) -> None:
     _check_shapes(rec)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "friction-daq recording 1"
             if rec.rig:
                 f.attrs["rig"] = rec.rig
             for k, v in rec.meta.items():
                 f.attrs[k] = _attr(v)
+            f.attrs["format"] = FORMAT_SIMPLE  # also when rec came from a run file
             ds = f.create_dataset("t", data=rec.t)
             ds.attrs["unit"] = "s"
             g = f.create_group("channels")
@@ -99,6 +151,8 @@ def write_h5(rec: Recording, path: str | Path) -> None:
                 tg = f.create_group("truth")
                 for name, x in rec.truth.items():
                     tg.create_dataset(name, data=np.asarray(x, dtype=float))
+            if rec.events:
+                f.create_dataset("events", data=events_to_array(rec.events))
 
 
 def write_recording(rec: Recording, path: str | Path, truth_in_csv: bool = False) -> None:
@@ -156,21 +210,136 @@ def _isfloat(x: str) -> bool:
         return False
 
 
-def read_h5(path: str | Path) -> Recording:
+def open_h5(path: str | Path) -> h5py.File:
+    """Open an HDF5 file for reading, also when a killed (or still running) writer left it marked open.
+
+    Plain open first; then SWMR read mode (what the recorder's files need after kill -9, and
+    while it still writes); then a read-only view with the superblock flags cleared (a file
+    killed outside SWMR mode). The file itself is never modified.
+    """
     src = str(path)
     try:
-        f = h5py.File(path, "r")
+        return h5py.File(path, "r")
     except OSError as exc:
-        raise InputError(src, "(file)", f"not a readable HDF5 file ({exc})") from None
+        first = exc
+    try:
+        unclean = h5recover.is_unclean(path)
+    except InputError:
+        unclean = False
+    if unclean:
+        try:
+            return h5py.File(path, "r", swmr=True)
+        except OSError:
+            pass
+        try:
+            return h5py.File(h5recover.CleanView(path), "r")
+        except (OSError, InputError):
+            pass
+    raise InputError(src, "(file)", f"not a readable HDF5 file ({first})") from None
+
+
+def _text_attrs(attrs: h5py.AttributeManager) -> dict[str, object]:
+    return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in attrs.items()}
+
+
+def read_h5(path: str | Path) -> Recording:
+    src = str(path)
+    f = open_h5(path)
     with f:
+        meta = _text_attrs(f.attrs)
+        if "streams" in f:
+            return _read_run(f, src, meta)
         if "t" not in f or "channels" not in f:
             raise InputError(src, "t" if "t" not in f else "channels", "missing dataset")
         t = f["t"][()]
         channels = {k: d[()] for k, d in f["channels"].items()}
         units = {k: str(d.attrs.get("unit", "")) for k, d in f["channels"].items()}
         truth = {k: d[()] for k, d in f["truth"].items()} if "truth" in f else {}
-        meta = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-    return Recording(meta.get("rig"), t, channels, units, meta, truth)
+        t0 = float(meta.get("start_host_time", 0.0))
+        events = events_from_array(f["events"][()], t0) if "events" in f else []
+    return Recording(meta.get("rig"), t, channels, units, meta, truth, events)
+
+
+@dataclass
+class _Stream:
+    """One stream of a run file, read whole and cut to the length all its datasets reached."""
+
+    name: str
+    t: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    info: dict[str, object]
+
+    @property
+    def rate(self) -> float:
+        span = float(self.t[-1] - self.t[0]) if self.t.size > 1 else 0.0
+        return (self.t.size - 1) / span if span > 0 else 0.0
+
+
+def _stream_channels(g: h5py.Group) -> list[str]:
+    names = g.attrs.get("channels")
+    if names is None:
+        return [k for k in g if k not in STREAM_RESERVED]
+    return [n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(names)]
+
+
+def _read_stream(name: str, g: h5py.Group, src: str) -> _Stream | None:
+    if "t" not in g:
+        raise InputError(src, f"streams/{name}/t", "missing dataset")
+    chans = [c for c in _stream_channels(g) if c in g]
+    # a crash between the writes of one flush can leave the datasets of a stream at different lengths
+    n = min([g["t"].shape[0]] + [g[c].shape[0] for c in chans])
+    if n == 0 or not chans:
+        return None
+    t = g["t"][:n]
+    data = {c: np.asarray(g[c][:n], dtype=np.float64) for c in chans}
+    units = {c: str(g[c].attrs.get("unit", "")) for c in chans}
+    info = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in g.attrs.items() if k != "channels"}
+    info.update(channels=chans, samples=int(n))
+    if not np.all(np.diff(t) >= 0):  # a clock step or restarted source: keep the samples, in time order
+        order = np.argsort(t, kind="stable")
+        t = t[order]
+        data = {c: x[order] for c, x in data.items()}
+    return _Stream(name, t, data, units, info)
+
+
+def _onto(base: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """x(t) linearly interpolated at ``base``; NaN outside [t0, t_end] and inside holes > GAP_PERIODS periods."""
+    if t.size == 1:
+        return np.where(base == t[0], x[0], np.nan)
+    y = np.interp(base, t, x, left=np.nan, right=np.nan)
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    if period > 0:
+        hole = dt > GAP_PERIODS * period
+        if hole.any():
+            i = np.searchsorted(t, base, side="right") - 1  # interval [t[i], t[i+1]] holding each base time
+            inside = (i >= 0) & (i < dt.size)
+            in_hole = np.zeros(base.size, dtype=bool)
+            in_hole[inside] = hole[i[inside]] & (base[inside] > t[i[inside]])
+            y[in_hole] = np.nan
+    return y
+
+
+def _read_run(f: h5py.File, src: str, meta: dict[str, object]) -> Recording:
+    """A recorder file as one Recording on the fastest stream's time base."""
+    streams = [s for name, g in f["streams"].items() if (s := _read_stream(name, g, src)) is not None]
+    if not streams:
+        raise InputError(src, "streams", "no samples recorded")
+    streams.sort(key=lambda s: (-s.rate, s.name))
+    base = streams[0]
+    t0 = float(meta.get("start_host_time", base.t[0]))
+    channels: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    for s in streams:
+        for c, x in s.channels.items():
+            key = c if c not in channels else f"{s.name}.{c}"
+            channels[key] = x if s is base else _onto(base.t, s.t, x)
+            units[key] = s.units[c]
+    meta["streams"] = {s.name: s.info for s in streams}
+    meta["time_base"] = base.name
+    events = events_from_array(f["events"][()], t0) if "events" in f else []
+    return Recording(meta.get("rig") or None, base.t - t0, channels, units, meta, {}, events)
 
 
 def read_recording(path: str | Path) -> Recording:
