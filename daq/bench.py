@@ -119,6 +119,8 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "sim": ("daq.bench", "bench_sim", "format_report"),
     "can": ("daq.bench_can", "bench_can", "format_can"),
     "serial": ("daq.bench_serial", "bench_serial", "format_serial"),
+    "estimator": ("daq.bench_estimator", "bench_estimator", "format_estimator"),
+    "bus": ("daq.bench_bus", "bench_bus", "format_bus"),
 }
 
 

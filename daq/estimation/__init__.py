@@ -1,0 +1,1 @@
+"""Online friction estimation: inverse dynamics of each rig with causal differentiation."""
