@@ -48,6 +48,7 @@ class Publisher:
 
     def publish(self, meta: StreamMeta, t: np.ndarray, data: np.ndarray,
                 device_t: np.ndarray | None = None) -> Block:
+        """Number and send a block. Arrays above 64 kB go out without copying: do not modify them after."""
         seq = self._seq.get(meta.stream, 0)
         self._seq[meta.stream] = seq + 1
         block = make_block(meta, seq, t, data, device_t, sent_host_time=time.monotonic())
