@@ -142,6 +142,16 @@ class Unwrapper:
         self.wraps = 0
 
 
+def close_quietly(port: object | None) -> None:
+    """Close a transport that may already be dead; a vanished device fails to close in many ways."""
+    if port is None:
+        return
+    try:
+        port.close()  # type: ignore[attr-defined]
+    except Exception:  # noqa: BLE001
+        pass
+
+
 class EventLog:
     """A bounded, thread-safe list of DriverEvents that the owner drains with ``events()``."""
 

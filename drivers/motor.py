@@ -16,7 +16,7 @@ from abc import ABC, abstractmethod
 import serial
 from pydantic import BaseModel, ConfigDict, Field
 
-from .base import Backoff, BackoffCfg, DriverState, EventLog
+from .base import Backoff, BackoffCfg, DriverState, EventLog, close_quietly
 from .motor_protocol import LineBuffer, ProtocolError, Status, decode, encode
 
 
@@ -135,12 +135,8 @@ class SerialMotorRegulator(MotorDrive):
         self.state = DriverState.CONNECTED  # last: whoever sees CONNECTED also sees the events
 
     def _drop_port(self) -> None:
-        if self._port is not None:
-            try:
-                self._port.close()
-            except Exception:  # noqa: BLE001 - closing a dead port must not raise
-                pass
-        self._port = None
+        port, self._port = self._port, None
+        close_quietly(port)
 
     def _mark_lost(self, why: str) -> None:
         if self.state != DriverState.RECONNECTING:

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from daq.config import RigConfig
 
-from .base import BackoffCfg, Sample, SampleSource, Unwrapper
+from .base import BackoffCfg, Sample, SampleSource, Unwrapper, close_quietly
 from .framing import MAX_CHANNELS, TIME_MODULUS, TIME_UNIT_S, FrameDecoder, SeqTracker, StreamChannel, scale_for_lsb
 
 
@@ -73,11 +73,7 @@ class BinaryStreamDriver(SampleSource):
     def _disconnect(self) -> None:
         """Close the port, swallowing errors of an already dead device."""
         port, self._port = self._port, None
-        if port is not None:
-            try:
-                port.close()
-            except Exception:  # noqa: BLE001 - closing a vanished device may fail in many ways
-                pass
+        close_quietly(port)
 
     def _read_samples(self, timeout: float) -> list[Sample]:
         """Take what is buffered now, or wait up to timeout for the first byte, then decode."""

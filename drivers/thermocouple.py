@@ -8,7 +8,7 @@ import time
 import serial
 from pydantic import BaseModel, ConfigDict, Field
 
-from .base import BackoffCfg, Sample, SampleSource
+from .base import BackoffCfg, Sample, SampleSource, close_quietly
 
 try:  # pyserial's posix backend lets termios.error escape from flushes on a vanished device
     import termios
@@ -63,11 +63,7 @@ class ThermocoupleDriver(SampleSource):
     def _disconnect(self) -> None:
         """Close the port, swallowing errors of an already dead device."""
         port, self._port = self._port, None
-        if port is not None:
-            try:
-                port.close()
-            except Exception:  # noqa: BLE001 - closing a vanished device may fail in many ways
-                pass
+        close_quietly(port)
 
     def _read_samples(self, timeout: float) -> list[Sample]:
         """Poll if one is due within timeout, otherwise just wait; keeps the poll cadence without drift."""
