@@ -385,3 +385,14 @@ def test_read_unknown_format(tmp_path):
     with pytest.raises(InputError) as info:
         read_recording(path)
     expect_error(info.value, str(path), "(file)", "unsupported format")
+
+
+def test_written_files_get_normal_permissions(tmp_path):
+    """Atomic writes go through mkstemp (0600); the result must look like any other file (0666 & ~umask)."""
+    import os
+
+    umask = os.umask(0)
+    os.umask(umask)
+    path = tmp_path / "run.csv"
+    write_csv(make_recording(), path)
+    assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)
