@@ -222,7 +222,6 @@ class BeltSim(SimRig):
             out[f"x{i + 1}_dot"] = c.states[:, self.n + i]
             out[f"friction_force_{i + 1}"] = -fr[:, i]  # common convention: force on body = -F
             out[f"stuck_{i + 1}"] = md[:, i]
-        out["stick_clock"] = np.zeros(len(fr))
         return out
 
     def modes_hz(self):
