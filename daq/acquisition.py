@@ -39,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from daq.bus import BusCfg, Publisher
 from daq.config import CanInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
-from daq.stream import StreamMeta
+from daq.stream import BusEvent, StreamMeta
 from drivers.base import DriverEvent, Sample, SampleSource
 from drivers.factory import RigDrivers
 from drivers.motor import MotorError, MotorUnavailable, SerialMotorRegulator
@@ -200,6 +200,11 @@ class Acquisition:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def publish_event(self, kind: str, source: str, detail: str = "", **kw: Any) -> None:
+        """Put a daemon-level event (ramp segment, operator note, recording) on the bus, via the sender."""
+        self._enqueue(("event", BusEvent(kind=kind, source=source, host_time=time.monotonic(), detail=detail,
+                                         **kw)))
 
     # --- the sender: the only thread that touches the socket
     def _enqueue(self, item: tuple) -> None:
