@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from daq.config import CONFIG_DIR, BeltRig, BrakeRig, DrumRig, config_text, load_rig, parse_rig, rig_ids
 from daq.errors import InputError
+from helpers import expect_error
 
 RIGS = {"belt-ndof": BeltRig, "brake-2dof": BrakeRig, "drum-pendulum": DrumRig}
 
@@ -25,17 +26,6 @@ def write_cfg(tmp_path: Path, data: dict, name: str = "rig.toml") -> Path:
     path.write_text(tomli_w.dumps(data))
     return path
 
-
-def expect_error(exc: InputError, source: str, field: str, *fragments: str) -> None:
-    """The error is one line 'SOURCE: FIELD: message' with the given source and field."""
-    text = str(exc)
-    assert "\n" not in text
-    assert exc.source == source
-    assert exc.field == field
-    assert text == f"{source}: {field}: {exc.message}"
-    assert exc.message
-    for frag in fragments:
-        assert frag in exc.message, (frag, text)
 
 
 def load_bad(tmp_path: Path, data: dict) -> InputError:

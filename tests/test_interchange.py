@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from daq.errors import InputError
+from helpers import expect_error, write
 from daq.io.interchange import (Recording, atomic_path, read_csv, read_h5, read_recording, write_csv, write_h5,
                                 write_recording)
 
@@ -42,20 +43,6 @@ def printed(x: np.ndarray) -> np.ndarray:
     return np.array([float(f"{v:.9g}") for v in x])
 
 
-def write(tmp_path: Path, name: str, text: str) -> Path:
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def expect_error(exc: InputError, source: str, field: str, *fragments: str) -> None:
-    """The error is one line 'SOURCE: FIELD: message' with the given source and field."""
-    text = str(exc)
-    assert "\n" not in text
-    assert (exc.source, exc.field) == (source, field)
-    assert text == f"{source}: {field}: {exc.message}"
-    for frag in fragments:
-        assert frag in exc.message, (frag, text)
 
 
 def bad_csv(tmp_path: Path, text: str) -> tuple[Path, InputError]:

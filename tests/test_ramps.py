@@ -10,23 +10,10 @@ import pytest
 
 from daq.config import load_rig
 from daq.errors import InputError
+from helpers import expect_error, write
 from daq.ramps import EXP_POINTS, Ramp, Segment, check_limits, constant_ramp, load_ramp, ramp_table, seed_ramp
 
 
-def write(tmp_path: Path, name: str, text: str) -> Path:
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def expect_error(exc: InputError, source: str, field: str, *fragments: str) -> None:
-    """The error is one line 'SOURCE: FIELD: message' with the given source and field."""
-    text = str(exc)
-    assert "\n" not in text
-    assert (exc.source, exc.field) == (source, field)
-    assert text == f"{source}: {field}: {exc.message}"
-    for frag in fragments:
-        assert frag in exc.message, (frag, text)
 
 
 def load_bad(path: Path) -> InputError:

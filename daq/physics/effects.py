@@ -234,10 +234,6 @@ def neutral_vector() -> np.ndarray:
     return e
 
 
-def effect_names() -> list[str]:
-    return list(CATALOG)
-
-
 # ---------------------------------------------------------------------------
 # Terms (compiled): pure scalar functions
 #
