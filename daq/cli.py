@@ -216,6 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true")
     bench.set_defaults(func=cmd_bench)
 
+    from .cli_daemon import register as register_daemon
+
+    register_daemon(sub)
+
     demo = sub.add_parser("demo", help="the main job on simulated hardware")
     demo.add_argument("--out", default="out/demo", help="report folder")
     demo.set_defaults(func=cmd_demo)
