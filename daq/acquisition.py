@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from daq.bus import BusCfg, Publisher
 from daq.config import CanInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
 from daq.stream import BusEvent, StreamMeta
-from drivers.base import DriverEvent, Sample, SampleSource
+from drivers.base import ClockSync, DriverEvent, Sample, SampleSource
 from drivers.factory import RigDrivers
 from drivers.motor import MotorError, MotorUnavailable, SerialMotorRegulator
 from drivers.serial_stream import BinaryStreamDriver
@@ -101,6 +101,7 @@ class Acquisition:
         self.dropped = 0  # blocks/events lost because the sender's queue was full
         self.misaligned_reads = 0  # framed reads whose samples did not form whole frames (dropped)
         self.errors: dict[str, str] = {}  # last unexpected error per thread
+        self._last_t: dict[str, float] = {}  # last published t per framed stream (kept non-decreasing)
         self._motor_last: tuple[float, float, float] | None = None  # (host t, measured, setpoint)
         self._motor_fail = 0
         self._routes = {name: self._route(name, src) for name, src in drivers.sources.items()}
@@ -269,7 +270,7 @@ class Acquisition:
 
     def _publish_samples(self, name: str, route: _Route, samples: list[Sample]) -> None:
         if route.framed is not None:
-            self._publish_framed(route.framed, samples)
+            self._publish_framed(route.framed, samples, getattr(self.drivers.sources[name], "clock", None))
             return
         by_ch: dict[str, list[Sample]] = defaultdict(list)
         for s in samples:
@@ -283,8 +284,16 @@ class Acquisition:
             data = np.fromiter((s.value for s in ss), np.float64, len(ss))
             self._enqueue(("block", meta, t, data, dev))
 
-    def _publish_framed(self, meta: StreamMeta, samples: list[Sample]) -> None:
-        """Rows of whole frames: the samples come as frame after frame, channels in stream order."""
+    def _publish_framed(self, meta: StreamMeta, samples: list[Sample], clock: ClockSync | None = None) -> None:
+        """Rows of whole frames: the samples come as frame after frame, channels in stream order.
+
+        ``t``: a serial read returns many frames stamped with one host reception time, which
+        would give the stream runs of equal times (the estimator's differentiator sees every
+        block as a time gap). So, once the driver's clock fit exists, ``t`` is each frame's
+        device time mapped to the host clock (lower envelope of the reception delay: when it
+        was sampled, plus the link's minimum latency), kept non-decreasing; ``device_t`` stays
+        the raw device clock.
+        """
         nch = len(meta.channels)
         n = len(samples) // nch
         ok = n * nch == len(samples)
@@ -305,6 +314,13 @@ class Acquisition:
         first = samples[::nch]
         t = np.fromiter((s.host_time for s in first), np.float64, n)
         dev = np.fromiter((s.device_time for s in first), np.float64, n)
+        est = clock.estimate() if clock is not None and n > 1 else None
+        if est is not None:
+            offset, drift = est
+            mapped = offset + dev / (1.0 + drift)
+            if np.all(np.isfinite(mapped)) and abs(mapped[-1] - t[-1]) < 1.0:  # a sane fit only
+                t = np.maximum.accumulate(np.maximum(mapped, self._last_t.get(meta.stream, -np.inf)))
+        self._last_t[meta.stream] = float(t[-1])
         data = np.fromiter((s.value for s in samples), np.float64, n * nch).reshape(n, nch)
         self._enqueue(("block", meta, t, data, dev))
 

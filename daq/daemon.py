@@ -1,20 +1,35 @@
 """The operator daemon: one rig's drivers, the bus, the recorder and the estimator, under control.
 
-``daq daemon --rig RIG [--sim]`` assembles what the lab runs: the drivers from the
-rig config (or pointed at a simulated bench with ``--sim``), the acquisition pump
-onto the sample bus, the online estimator, a recorder that writes the bus to one
-HDF5 file per run, and the ramp runner. Operators drive it through the control
-socket (``daq ctl``). On SIGTERM/SIGINT it ramps the belt down before it exits;
-if it dies instead, the regulator's watchdog stops the belt.
+``daq daemon --rig RIG [--sim]`` assembles what the lab runs. Process layout (one
+interpreter lock each, so nothing starves the acquisition or the estimator)::
+
+    sim bench (python -m sim_backends.process, --sim only; own session, OUTLIVES the daemon)
+        |  ptys: motor regulator, serial sensor stream, thermocouple
+    daemon (this process): drivers -> acquisition -> PUB bus; ramp runner; control socket; motor heartbeat
+        |-- estimator (python -m daq.estimator): SUB bus -> PUB estimates
+        '-- recorder  (python -m daq.recorder, one per recording): SUB bus + estimates -> HDF5
+
+Operators drive it through the control socket (``daq ctl``). On SIGTERM/SIGINT it
+ramps the belt down before it exits; if it dies instead, the regulator's watchdog
+stops the belt (the daemon's heartbeat thread dies with it), and the estimator and
+recorder notice that their parent is gone (the recorder closes its file cleanly).
+
+For ``daq demo`` and scripts, :func:`run_sim_ramp` runs the whole thing as a library call.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import json
+import os
 import signal
+import subprocess
+import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,15 +37,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .acquisition import Acquisition, AcquisitionCfg
 from .bus import Subscriber
-from .config import load_rig
+from .config import config_text, load_rig
 from .errors import InputError
-from .estimation.online import OnlineCfg, OnlineEstimator
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
-from .recorder import RunWriter
-from .sim.effectset import parse_effect
-from .stream import Block, BusEvent
+from .stream import Block
 
 STANDSTILL = 1e-3  # [m/s]
+ROOT = Path(__file__).resolve().parent.parent  # where `python -m daq...` finds the packages
 
 
 class DaemonCfg(BaseModel):
@@ -39,51 +52,161 @@ class DaemonCfg(BaseModel):
     sim: bool = False
     sim_effects: list[str] = Field(default_factory=list, description="hidden effects of the simulated rig")
     sim_time_scale: float = Field(1.0, gt=0)
+    sim_seed: int = 0
     workdir: Path | None = Field(None, description="where simulated serial devices appear (default: a temp dir)")
     data_dir: Path = Path("data")
     bus_endpoint: str = "tcp://127.0.0.1:5560"
-    estimator_endpoint: str = "tcp://127.0.0.1:5561"
-    flush_s: float = Field(0.25, gt=0)
+    estimator_endpoint: str = "tcp://127.0.0.1:0"
+    estimator: bool = True
+    flush_s: float = Field(0.25, gt=0, le=1.0)
     ramp_down_timeout_s: float = Field(10.0, gt=0)
+    start_timeout_s: float = Field(180.0, gt=0, description="for the child processes to come up (numba caches)")
 
 
-class RecordingSession:
-    """Writes everything on the bus (samples, estimator output, events) into one run file."""
+def _popen(args: list[str], **kw: Any) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", *args], cwd=str(ROOT), **kw)
 
-    def __init__(self, path: Path, endpoints: list[str], rig_cfg, flush_s: float, ramp_text: str = "") -> None:
+
+def _first_line(proc: subprocess.Popen, timeout: float, what: str) -> str:
+    """The child's first stdout line (its 'ready' line), or RuntimeError if it does not come."""
+    box: list[str] = []
+    th = threading.Thread(target=lambda: box.append(proc.stdout.readline()), daemon=True)
+    th.start()
+    th.join(timeout)
+    line = box[0] if box else ""
+    if not line.strip():
+        proc.kill()
+        raise RuntimeError(f"{what} did not start within {timeout:g} s (exit status {proc.poll()})")
+    return line.strip()
+
+
+def _terminate(proc: subprocess.Popen, timeout: float) -> int | None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+    return proc.returncode
+
+
+class EstimatorProcess:
+    """``python -m daq.estimator`` on the daemon's bus; its stats lines are kept for status."""
+
+    def __init__(self, rig: str, sub_endpoint: str, pub_endpoint: str, timeout: float) -> None:
+        self.proc = _popen(["daq.estimator", "--rig", rig, "--sub", sub_endpoint, "--pub", pub_endpoint,
+                            "--parent-pid", str(os.getpid())], stdout=subprocess.PIPE, text=True)
+        self.pid = self.proc.pid
+        info = json.loads(_first_line(self.proc, timeout, "the estimator process"))
+        self.endpoint: str = info["endpoint"]
+        self.stats: dict[str, Any] = {}
+        self._reader = threading.Thread(target=self._read, name="estimator-stats", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            if line.startswith("stats "):
+                try:
+                    self.stats = json.loads(line[6:])
+                except ValueError:
+                    pass
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self) -> None:
+        _terminate(self.proc, 15)
+        self._reader.join(2)
+
+
+class RecorderProcess:
+    """``python -m daq.recorder`` for one run file; started by record_start, SIGTERM'd by record_stop."""
+
+    def __init__(self, path: Path, rig_arg: str, endpoints: list[str], flush_s: float, timeout: float,
+                 wait_stream: str | None = "motor") -> None:
         self.path = path
-        self.writer = RunWriter()
-        self.writer.open(path, rig_cfg, ramp_text)
-        self.sub = Subscriber(endpoints[0], rcvhwm=100_000, name="recorder")
+        cmd = ["daq.recorder", "--endpoint", endpoints[0], "--rig", rig_arg, "-o", str(path), "--flush-s",
+               repr(flush_s), "--parent-pid", str(os.getpid())]
         for ep in endpoints[1:]:
-            self.sub.sock.connect(ep)
-        self.flush_s = flush_s
+            cmd += ["--also", ep]
+        self.proc = _popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.pid = self.proc.pid
+        self.streams: list[str] = []
+        self.progress = ""
+        self.closed_line = ""
+        self._stream_seen = threading.Condition()
+        line = _first_line(self.proc, timeout, "the recorder process")
+        if not line.startswith("ready"):
+            raise RuntimeError(f"recorder: {line}")
+        threading.Thread(target=self._read_out, name="recorder-out", daemon=True).start()
+        threading.Thread(target=self._read_err, name="recorder-err", daemon=True).start()
+        if wait_stream is not None:  # its subscription is live once a stream of ours reached the file
+            with self._stream_seen:
+                self._stream_seen.wait_for(lambda: wait_stream in self.streams or not self.alive, timeout=timeout)
+
+    def _read_out(self) -> None:
+        for line in self.proc.stdout:
+            if line.startswith("stream "):
+                with self._stream_seen:
+                    self.streams.append(line.split(None, 1)[1].strip())
+                    self._stream_seen.notify_all()
+
+    def _read_err(self) -> None:
+        for line in self.proc.stderr:
+            if line.startswith("recorder:"):
+                self.progress = line.strip()
+            elif line.startswith("closed "):
+                self.closed_line = line.strip()
+            else:
+                sys.stderr.write(line)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def lost_blocks(self) -> int | None:
+        """From the recorder's last progress line ('lost blocks N')."""
+        parts = self.progress.split("lost blocks")
+        try:
+            return int(parts[1].split()[0]) if len(parts) > 1 else None
+        except (ValueError, IndexError):
+            return None
+
+    def stop(self, timeout: float = 60.0) -> int | None:
+        rc = _terminate(self.proc, timeout)
+        return rc
+
+
+class EstimateMonitor:
+    """Keeps the latest estimate and law fit (for status and progress), from the estimator's stream."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.sub = Subscriber(endpoint, streams=["estimator", "friction_fit"], events=False, rcvhwm=1000,
+                              name="daemon-monitor")
+        self.last: dict[str, float] = {}
+        self.fit: dict[str, float] = {}
+        self.blocks = 0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="recorder", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name="estimate-monitor", daemon=True)
         self._thread.start()
 
     def _loop(self) -> None:
-        last = time.monotonic()
         while not self._stop.is_set():
-            m = self.sub.recv(0.05)
-            if isinstance(m, Block):
-                try:
-                    self.writer.append(m)
-                except ValueError as exc:  # a block the file cannot hold: keep the rest
-                    self.writer.note("rejected", str(exc))
-            elif isinstance(m, BusEvent):
-                self.writer.event(m)
-            if time.monotonic() - last > self.flush_s:
-                self.writer.flush()
-                last = time.monotonic()
-
-    def note(self, text: str) -> None:
-        self.writer.note("note", text, source="operator")
+            m = self.sub.recv(0.1)
+            if isinstance(m, Block) and m.header.n:
+                row = {c: float(v) for c, v in zip(m.meta.channels, m.data[-1])}
+                row["t"] = float(m.t[-1])
+                if m.meta.stream == "estimator":
+                    self.blocks += 1
+                    self.last = row
+                else:
+                    self.fit = row
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=5)
-        self.writer.close()
+        self._thread.join(2)
         self.sub.close()
 
 
@@ -91,36 +214,61 @@ class Daemon:
     def __init__(self, cfg: DaemonCfg) -> None:
         self.cfg = cfg
         self.rig = load_rig(cfg.rig)
-        self.hw = None
+        self.sim = None  # SimBenchProcess with --sim
+        self.estimator: EstimatorProcess | None = None
+        self.monitor: EstimateMonitor | None = None
         self.runner: RampRunner | None = None
-        self.session: RecordingSession | None = None
+        self.recorder: RecorderProcess | None = None
         self.started = False
+        self.t_start = time.monotonic()
         self._lock = threading.RLock()
+        self._rates: dict[str, float] = {}
+        self._rate_stop = threading.Event()
+        self._rig_arg = cfg.rig
 
     # --- life cycle
     def start(self) -> "Daemon":
         from drivers.factory import build_drivers
 
         endpoints = None
-        if self.cfg.sim:
-            from sim_backends.hardware import SimulatedHardware
+        try:
+            if self.cfg.sim:
+                from sim_backends.process import SimBenchProcess, cross_process_wiring
 
-            workdir = self.cfg.workdir or Path(tempfile.mkdtemp(prefix=f"daq-sim-{self.rig.rig}-"))
-            effects = [parse_effect(x, "--effect") for x in self.cfg.sim_effects]
-            self.hw = SimulatedHardware(self.rig, workdir, effects=effects,
-                                        time_scale=self.cfg.sim_time_scale).start()
-            endpoints = self.hw.endpoints()
-        self.drivers = build_drivers(self.rig, endpoints)
-        self.drivers.open()
-        self.acq = Acquisition(self.rig, self.drivers, AcquisitionCfg(endpoint=self.cfg.bus_endpoint))
-        self.acq.start()
-        self.estimator = OnlineEstimator(self.rig, OnlineCfg(sub_endpoint=self.acq.endpoint,
-                                                             pub_endpoint=self.cfg.estimator_endpoint,
-                                                             fit="thread"))
-        self.estimator.start()
-        self.estimator_endpoint = self.estimator.endpoint
+                workdir = self.cfg.workdir or Path(tempfile.mkdtemp(prefix=f"daq-sim-{self.rig.rig}-"))
+                self.rig = cross_process_wiring(self.rig)
+                self.sim = SimBenchProcess(self.cfg.rig, workdir, effects=self.cfg.sim_effects,
+                                           time_scale=self.cfg.sim_time_scale, seed=self.cfg.sim_seed,
+                                           owner_pid=os.getpid(), start_timeout_s=self.cfg.start_timeout_s)
+                endpoints = self.sim.endpoints
+                wired = Path(workdir) / f"{self.rig.rig}.toml"  # what the recordings store: the wiring in use
+                wired.write_text(config_text(self.rig))
+                self._rig_arg = str(wired)
+            self.drivers = build_drivers(self.rig, endpoints)
+            self.drivers.open()
+            self.acq = Acquisition(self.rig, self.drivers, AcquisitionCfg(endpoint=self.cfg.bus_endpoint))
+            self.acq.start()
+            if self.cfg.estimator:
+                self.estimator = EstimatorProcess(self._rig_arg, self.acq.endpoint, self.cfg.estimator_endpoint,
+                                                  self.cfg.start_timeout_s)
+                self.monitor = EstimateMonitor(self.estimator.endpoint)
+        except BaseException:
+            self._release()
+            raise
+        threading.Thread(target=self._rate_loop, name="rates", daemon=True).start()
         self.started = True
         return self
+
+    def _release(self) -> None:
+        for step in (lambda: self.monitor and self.monitor.close(),
+                     lambda: self.estimator and self.estimator.stop(),
+                     lambda: hasattr(self, "acq") and self.acq.stop(),
+                     lambda: hasattr(self, "drivers") and self.drivers.close(),
+                     lambda: self.sim and self.sim.stop()):
+            try:
+                step()
+            except Exception:  # noqa: BLE001 - release the rest regardless
+                pass
 
     def shutdown(self) -> None:
         """Controlled stop: ramp the belt down, close the recording, release everything."""
@@ -128,19 +276,17 @@ class Daemon:
             if not self.started:
                 return
             self.started = False
+            self._rate_stop.set()
             try:
                 self.handle_stop({})
                 self.wait_standstill(self.cfg.ramp_down_timeout_s)
             except Exception:  # noqa: BLE001 - shutting down regardless; the watchdog is the backstop
                 pass
-            if self.session is not None:
-                self.session.close()
-                self.session = None
-            self.estimator.stop()
-            self.acq.stop()
-            self.drivers.close()
-            if self.hw is not None:
-                self.hw.stop()
+            if self.recorder is not None:
+                time.sleep(2 * self.cfg.flush_s)  # the ramp-down's last samples reach the file
+                self.recorder.stop()
+                self.recorder = None
+            self._release()
 
     def wait_standstill(self, timeout: float) -> bool:
         t_end = time.monotonic() + timeout
@@ -162,6 +308,14 @@ class Daemon:
         signal.signal(signal.SIGINT, handler)
         return done
 
+    def _rate_loop(self) -> None:
+        """Samples per second of every stream, over the last second (for status)."""
+        prev, t_prev = {k: v.samples for k, v in self.acq.counters().items()}, time.monotonic()
+        while not self._rate_stop.wait(1.0):
+            now, cur = time.monotonic(), {k: v.samples for k, v in self.acq.counters().items()}
+            self._rates = {k: (n - prev.get(k, 0)) / (now - t_prev) for k, n in cur.items()}
+            prev, t_prev = cur, now
+
     # --- control handlers (each takes the request's args, returns a result dict)
     def handlers(self) -> dict[str, Any]:
         return {"status": self.handle_status, "ramp": self.handle_ramp, "stop": self.handle_stop,
@@ -170,13 +324,37 @@ class Daemon:
 
     def handle_status(self, args: dict) -> dict:
         st = self.acq.status()
-        out: dict[str, Any] = {"rig": self.rig.rig, "sim": self.cfg.sim, "acquisition": st,
-                               "estimator": self.estimator.stats.model_dump(),
-                               "recording": str(self.session.path) if self.session else None}
+        counters = st.pop("streams")
+        streams = {k: {**v, "rate_hz": self._rates.get(k, 0.0)} for k, v in counters.items()}
+        motor = st.get("motor") or {}
+        drops = {"bus_queue": st["dropped"], "misaligned_reads": st["misaligned_reads"],
+                 "lost_frames": sum(s["lost_frames"] for s in st["sources"].values()),
+                 "checksum_errors": sum(s["checksum_errors"] for s in st["sources"].values()),
+                 "motor_failed_polls": motor.get("failed_polls", 0)}
+        out: dict[str, Any] = {"rig": self.rig.rig, "sim": self.cfg.sim, "pid": os.getpid(),
+                               "uptime_s": time.monotonic() - self.t_start, "bus": self.acq.endpoint,
+                               "belt": {"measured": motor.get("measured"), "setpoint": motor.get("setpoint"),
+                                        "regulator": motor.get("state")},
+                               "streams": streams, "sources": st["sources"], "drops": drops,
+                               "recording": None, "ramp": None, "estimator": None}
+        if self.estimator is not None:
+            est = dict(self.estimator.stats)
+            out["estimator"] = {"pid": self.estimator.pid, "alive": self.estimator.alive,
+                                "endpoint": self.estimator.endpoint, **est,
+                                "last": self.monitor.last if self.monitor else {},
+                                "fit": self.monitor.fit if self.monitor else {}}
+            drops["estimator_lost_blocks"] = est.get("lost_blocks", 0)
+        rec = self.recorder
+        if rec is not None:
+            out["recording"] = {"path": str(rec.path), "pid": rec.pid, "alive": rec.alive, "progress": rec.progress}
+            drops["recorder_lost_blocks"] = rec.lost_blocks() or 0
+        if self.sim is not None:
+            out["sim_bench"] = {"pid": self.sim.pid, "control": self.sim.control, "alive": self.sim.alive()}
         if self.runner is not None:
             p = self.runner.progress()
-            out["ramp"] = {"state": str(p.state), "t": p.t, "fraction": p.fraction, "segment": p.segment,
-                           "commanded": p.commanded, "measured": p.measured}
+            out["ramp"] = {"state": str(p.state), "t": p.t, "duration": self.runner.duration, "fraction": p.fraction,
+                           "segment": p.segment, "commanded": p.commanded, "measured": p.measured,
+                           "reason": self.runner.reason, "source": self.runner.source}
         return out
 
     def _on_ramp_event(self, ev: RampEvent) -> None:
@@ -184,17 +362,25 @@ class Daemon:
                                f"{ev.kind} {ev.index if ev.index is not None else ''} {ev.segment or ''} "
                                f"{ev.reason}".strip())
 
-    def handle_ramp(self, args: dict) -> dict:
+    def start_ramp(self, make: Callable[..., RampRunner], label: str, time_scale: float = 1.0) -> RampRunner:
+        """Validate (before any motion) and start a ramp; ``make(motor, vmax, amax, **kw)`` builds the runner."""
         with self._lock:
+            if not self.started:
+                raise RuntimeError("daemon is not running")
             if self.runner is not None and self.runner.running:
                 raise RuntimeError("a ramp is already running; stop it first")
             d = self.rig.drive
-            runner = RampRunner.from_file(self.drivers.motor, args["file"], d.max_speed_m_per_s, d.max_accel_m_per_s2,
-                                          cfg=RampRunnerCfg(time_scale=float(args.get("time_scale", 1.0))),
-                                          on_event=self._on_ramp_event)
+            runner = make(self.drivers.motor, d.max_speed_m_per_s, d.max_accel_m_per_s2,
+                          cfg=RampRunnerCfg(time_scale=float(time_scale)), on_event=self._on_ramp_event)
             self.runner = runner.start()
-        self.acq.publish_event("ramp_start", "ramp", str(args["file"]))
-        return {"started": str(args["file"])}
+        self.acq.publish_event("ramp_start", "ramp", label)
+        return runner
+
+    def handle_ramp(self, args: dict) -> dict:
+        path = str(args["file"])
+        self.start_ramp(lambda m, v, a, **kw: RampRunner.from_file(m, path, v, a, **kw), path,
+                        float(args.get("time_scale", 1.0)))
+        return {"started": path, "duration_s": self.runner.duration}
 
     def handle_stop(self, args: dict) -> dict:
         if self.runner is not None and self.runner.running:
@@ -214,27 +400,109 @@ class Daemon:
 
     def handle_record_start(self, args: dict) -> dict:
         with self._lock:
-            if self.session is not None:
-                raise RuntimeError(f"already recording to {self.session.path}")
+            if self.recorder is not None and self.recorder.alive:
+                raise RuntimeError(f"already recording to {self.recorder.path}")
             stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-            path = Path(args.get("path") or self.cfg.data_dir / f"{self.rig.rig}-{stamp}.h5")
+            path = Path(args.get("path") or self.cfg.data_dir / f"{self.rig.rig}-{stamp}.h5").absolute()
             if path.exists():
                 raise InputError(str(path), "path", "exists; recordings are never overwritten")
+            if path.suffix.lower() not in (".h5", ".hdf5"):
+                raise InputError(str(path), "path", "must end in .h5 or .hdf5")
             path.parent.mkdir(parents=True, exist_ok=True)
-            self.session = RecordingSession(path, [self.acq.endpoint, self.estimator_endpoint], self.rig,
-                                            self.cfg.flush_s)
-        return {"recording": str(path)}
+            eps = [self.acq.endpoint] + ([self.estimator.endpoint] if self.estimator is not None else [])
+            self.recorder = RecorderProcess(path, self._rig_arg, eps, self.cfg.flush_s, self.cfg.start_timeout_s)
+        self.acq.publish_event("record_start", "operator", str(path))
+        return {"recording": str(path), "pid": self.recorder.pid}
 
     def handle_record_stop(self, args: dict) -> dict:
         with self._lock:
-            if self.session is None:
+            if self.recorder is None:
                 raise RuntimeError("not recording")
-            path = self.session.path
-            self.session.close()
-            self.session = None
-        return {"closed": str(path)}
+            rec, self.recorder = self.recorder, None
+        self.acq.publish_event("record_stop", "operator", str(rec.path))
+        time.sleep(2 * self.cfg.flush_s)  # the stop event and the last blocks reach the recorder
+        rc = rec.stop()
+        if rc != 0:
+            raise RuntimeError(f"recorder exited with status {rc}: {rec.closed_line or rec.progress}")
+        return {"closed": str(rec.path), "recorder": rec.closed_line}
 
     def handle_note(self, args: dict) -> dict:
         text = str(args["text"])
         self.acq.publish_event("note", "operator", text)
         return {"noted": text}
+
+
+# ----------------------------------------------------------------------------- library use (daq demo)
+
+
+@dataclass(frozen=True)
+class BenchProgress:
+    """What a caller of :func:`run_sim_ramp` sees a few times a second."""
+
+    elapsed_s: float  # wall time since the ramp started [s]
+    state: str  # lead-in, running, finished, stopped, estopped, aborted
+    fraction: float  # of the programme done
+    belt_speed: float | None  # measured by the regulator's tachometer [m/s]
+    commanded: float  # the set point [m/s]
+    friction_N: float | None  # the online estimator's latest friction force F_est [N]
+    mu: float | None  # ... and friction coefficient mu_est
+
+
+def run_sim_ramp(rig: str, ramp: "str | Path | Any", out: str | Path, *, effects: list[str] = (),
+                 ramp_time_scale: float = 1.0, sim_time_scale: float = 1.0, seed: int = 0,
+                 progress: Callable[[BenchProgress], None] | None = None, progress_s: float = 0.2,
+                 workdir: str | Path | None = None, timeout_s: float | None = None) -> Path:
+    """Start a simulated bench and the daemon, run one ramp while recording, shut down; the run file's path.
+
+    ``ramp``: a ramp file (.toml/.csv) or a ``daq.ramps.Ramp``; ``effects``: hidden effects of the
+    simulated rig (``NAME[:k=v,...]``); ``ramp_time_scale`` compresses the programme (e.g. 3/45 runs
+    the 45 s seed ramp in 3 s, if the drive's acceleration limit allows); ``progress`` is called every
+    ``progress_s`` with a :class:`BenchProgress`. Raises InputError for a ramp the rig cannot run
+    (before any motion), RuntimeError if the ramp does not finish.
+    """
+    from .ramps import Ramp
+
+    out = Path(out)
+    work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="daq-bench-"))
+    d = Daemon(DaemonCfg(rig=rig, sim=True, sim_effects=list(effects), sim_time_scale=sim_time_scale,
+                         sim_seed=seed, workdir=work / "dev", data_dir=out.parent,
+                         bus_endpoint="tcp://127.0.0.1:0"))
+    if isinstance(ramp, Ramp):
+        def make(m, v, a, **kw):
+            return RampRunner.from_ramp(m, ramp, v, a, source=ramp.name, **kw)
+        label = ramp.name
+    else:
+        path = str(ramp)
+
+        def make(m, v, a, **kw):
+            return RampRunner.from_file(m, path, v, a, **kw)
+        label = path
+    d.start()
+    try:
+        d.handle_record_start({"path": str(out)})
+        runner = d.start_ramp(make, label, ramp_time_scale)
+        t0 = time.monotonic()
+        limit = timeout_s if timeout_s is not None else runner.duration / max(sim_time_scale, 1e-9) * 3 + 60
+        while True:
+            ended = runner.join(progress_s)
+            if progress is not None:
+                p = runner.progress()
+                last = d.monitor.last if d.monitor is not None else {}
+                try:
+                    progress(BenchProgress(time.monotonic() - t0, str(runner.state), p.fraction, p.measured,
+                                           p.commanded, last.get("F_est"), last.get("mu_est")))
+                except Exception:  # noqa: BLE001 - a display problem must not stop the belt programme
+                    pass
+            if ended:
+                break
+            if time.monotonic() - t0 > limit:
+                runner.stop()
+                raise RuntimeError(f"ramp did not finish within {limit:.0f} s")
+        d.wait_standstill(d.cfg.ramp_down_timeout_s)
+        time.sleep(0.5)  # the last estimates reach the file
+        if runner.state != "finished":
+            raise RuntimeError(f"ramp {runner.state}: {runner.reason}")
+        d.handle_record_stop({})
+        return out
+    finally:
+        d.shutdown()

@@ -63,6 +63,7 @@ class RecorderCfg(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     endpoint: str = BusCfg().endpoint
+    also: list[str] = Field(default_factory=list, description="more publishers to record (e.g. the estimator's)")
     rcvhwm: int = Field(100_000, ge=1, description="blocks queued before the subscriber drops (deep: never drop)")
     streams: list[str] | None = Field(None, description="stream names to record; None = all")
     name: str = "recorder"
@@ -320,6 +321,8 @@ class Recorder:
         self.writer = writer
         self.sub = Subscriber(self.cfg.endpoint, streams=self.cfg.streams, events=True,
                               rcvhwm=self.cfg.rcvhwm, name=self.cfg.name)
+        for ep in self.cfg.also:
+            self.sub.sock.connect(ep)
         self.rejected = 0
         self._stop = threading.Event()
         self._log = log  # callable(str) for the progress lines, or None
@@ -386,6 +389,10 @@ class Recorder:
 def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="python -m daq.recorder", description="record the sample bus to one HDF5 file")
     ap.add_argument("--endpoint", default=BusCfg().endpoint, help="the publisher's endpoint")
+    ap.add_argument("--also", action="append", default=[], metavar="ENDPOINT",
+                    help="also record this publisher (repeatable; e.g. the estimator's endpoint)")
+    ap.add_argument("--parent-pid", type=int, default=0,
+                    help="close the file and exit once this process is no longer our parent (it died)")
     ap.add_argument("--rig", required=True, help="rig id or config TOML (stored in the file)")
     ap.add_argument("-o", "--output", required=True, help="OUT.h5")
     ap.add_argument("--ramp", help="ramp file that drives this run (its text is stored)")
@@ -409,7 +416,8 @@ def _setup(args: argparse.Namespace) -> tuple[RunWriter, Recorder]:
         raise InputError(str(out), "-o", "exists (use --force to overwrite)")
     try:
         wcfg = WriterCfg(flush_s=args.flush_s)
-        rcfg = RecorderCfg(endpoint=args.endpoint, rcvhwm=args.rcvhwm, streams=args.streams, drain_s=args.drain_s)
+        rcfg = RecorderCfg(endpoint=args.endpoint, also=args.also, rcvhwm=args.rcvhwm, streams=args.streams,
+                           drain_s=args.drain_s)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise InputError("recorder", "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None
@@ -448,6 +456,14 @@ def main(argv: list[str] | None = None) -> int:
     writer.note("start", f"recording {args.endpoint}")
     for text in args.note:
         writer.note("note", text, source="operator")
+    orphaned = threading.Event()
+    if args.parent_pid:
+        def watch_parent() -> None:
+            while not rec._stop.wait(0.5):
+                if os.getppid() != args.parent_pid:
+                    orphaned.set()
+                    rec.stop()
+        threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
     print(f"ready {args.endpoint} {writer.path}", flush=True)
     rc = 0
     try:
@@ -456,6 +472,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"recorder: stopped by {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
         rc = 1
     try:
+        if orphaned.is_set():
+            writer.note("parent_gone", f"process {args.parent_pid} died; file closed")
         writer.note("stop", f"{writer.samples_appended} samples, {rec.sub.stats.lost_blocks} lost blocks",
                     count=rec.sub.stats.lost_blocks)
         writer.close()

@@ -9,6 +9,7 @@ process is alive, and to reconnect when the port comes back.
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -18,6 +19,18 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .base import Backoff, BackoffCfg, DriverState, EventLog, close_quietly
 from .motor_protocol import LineBuffer, ProtocolError, Status, decode, encode
+
+
+def answers(command: str, reply: str) -> bool:
+    """Whether ``reply`` can be the regulator's answer to ``command`` (docs/protocols/motor-regulator.md)."""
+    if reply.startswith("ERR "):
+        return True
+    cmd = command.split()[0] if command.split() else ""
+    if cmd in ("SPD?", "STAT?", "ID?"):
+        return reply.split()[0] == cmd[:-1] if reply.split() else False
+    if cmd == "HB":
+        return reply == command
+    return reply == "OK"
 
 
 class MotorError(RuntimeError):
@@ -90,6 +103,8 @@ class SerialMotorRegulator(MotorDrive):
         self.reconnects = 0
         self._port: serial.SerialBase | None = None
         self._lines = LineBuffer()
+        self._pending: collections.deque[bytes] = collections.deque()  # lines read but not yet consumed
+        self.stale_replies = 0  # late replies to timed-out requests, discarded
         self._lock = threading.RLock()
         self._backoff = Backoff(cfg.backoff)
         self._hb_seq = 0
@@ -123,6 +138,7 @@ class SerialMotorRegulator(MotorDrive):
             self._mark_lost(f"cannot open: {exc}")
             raise MotorUnavailable(str(exc)) from None
         self._lines.clear()
+        self._pending.clear()
         self._port.reset_input_buffer()
         was_lost = self._lost_at is not None
         self._backoff.succeeded()
@@ -154,12 +170,20 @@ class SerialMotorRegulator(MotorDrive):
 
     # --- request/reply
     def _exchange(self, body: str) -> str:
-        """Send one command and return the reply body; retries corrupted replies."""
+        """Send one command and return ITS reply body; retries corrupted or missing replies.
+
+        Replies carry no tag, so a reply that comes after its request timed out would be read
+        as the answer to the next command, and every later exchange would stay one reply
+        behind (seen as ``bad SPD? reply ['HB', '14']`` on a loaded machine). Hence: stale
+        input is discarded before each command, and a reply that cannot answer this command
+        (wrong shape, wrong heartbeat counter) is discarded as stale, not returned.
+        """
         assert self._port is not None
         for _ in range(self.cfg.retries + 1):
             try:
+                self._discard_stale()
                 self._port.write(encode(body))
-                reply = self._read_reply()
+                reply = self._read_reply(body)
             except (serial.SerialException, OSError) as exc:
                 self._drop_port()
                 self._backoff.failed(time.monotonic())
@@ -172,18 +196,38 @@ class SerialMotorRegulator(MotorDrive):
                 return reply
         raise MotorUnavailable(f"{self.name}: no valid reply to {body!r}")
 
-    def _read_reply(self) -> str | None:
+    def _discard_stale(self) -> None:
+        """Drop replies to earlier, timed-out requests (the regulator never speaks unasked)."""
+        assert self._port is not None
+        waiting = self._port.in_waiting
+        stale = len(self._pending) + (1 if waiting or self._lines.buf else 0)
+        if waiting:
+            self._port.read(waiting)
+        self._lines.clear()
+        self._pending.clear()
+        if stale:
+            self.stale_replies += stale
+            self.log.emit("frame_error", f"discarded {stale} late reply(ies) before the next command")
+
+    def _read_reply(self, body: str) -> str | None:
         deadline = time.monotonic() + self.cfg.timeout_s
         assert self._port is not None
         while time.monotonic() < deadline:
-            data = self._port.read(self._port.in_waiting or 1)
-            for line in self._lines.feed(data):
+            if not self._pending:
+                data = self._port.read(self._port.in_waiting or 1)
+                self._pending.extend(self._lines.feed(data))
+            while self._pending:
+                line = self._pending.popleft()
                 try:
-                    return decode(line)
+                    reply = decode(line)
                 except ProtocolError as exc:
                     self.frame_errors += 1
                     self.log.emit("frame_error", str(exc))
                     return None
+                if answers(body, reply):
+                    return reply
+                self.stale_replies += 1  # a late reply to an earlier request
+                self.log.emit("frame_error", f"discarded reply {reply!r}: does not answer {body!r}")
         self.frame_errors += 1
         self.log.emit("frame_error", "reply timeout")
         return None

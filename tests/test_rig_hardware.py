@@ -89,3 +89,41 @@ def test_two_instruments_cannot_carry_one_channel():
     data["instruments"]["laser_serial"]["enabled"] = True
     with pytest.raises(InputError, match=r"instruments\.laser_serial\.channels: 'x1' is also carried"):
         parse_rig(data, "brake.toml")
+
+
+def test_late_reply_is_not_taken_for_the_next_commands_reply(tmp_path):
+    """Regression (flaky belt-ndof run): a reply arriving after its request timed out used to be read as
+    the answer to the next command ('bad SPD? reply ['HB', '14']'), and the link stayed one reply behind."""
+    from drivers.motor import MotorCfg, MotorUnavailable, SerialMotorRegulator
+    from sim_backends.motor import SimMotorRegulator
+    from sim_backends.pty_port import PtyPort
+    from sim_backends.realtime import RealtimeRig
+
+    rig = RealtimeRig(load_rig("brake-2dof"))
+    port = PtyPort(tmp_path / "motor")
+    reg = SimMotorRegulator(rig, port)
+    slow_once = {"HB": True}
+    handle = reg.handle
+
+    def late_handle(body: str) -> str:
+        if body.startswith("HB") and slow_once.pop("HB", False):
+            time.sleep(0.4)  # longer than the driver's reply timeout: as on a starved machine
+        return handle(body)
+
+    reg.handle = late_handle
+    reg.start()
+    drv = SerialMotorRegulator(MotorCfg(url=str(port.link), timeout_s=0.25, retries=0))
+    try:
+        drv.open(heartbeat=False)
+        with pytest.raises(MotorUnavailable):
+            drv.request("HB 7")  # times out; its echo comes 0.15 s later and waits in the pty
+        time.sleep(0.4)
+        for _ in range(5):  # every later exchange gets its own reply
+            measured, setpoint = drv.read_speed()
+            assert setpoint == 0.0 and abs(measured) < 0.01
+            assert drv.request("HB 8") == "HB 8"
+        assert drv.stale_replies >= 1  # the late echo was seen and discarded
+    finally:
+        drv.close()
+        reg.stop()
+        port.close()
