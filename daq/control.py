@@ -30,6 +30,8 @@ import zmq.auth
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from zmq.auth.thread import ThreadAuthenticator
 
+from .errors import InputError
+
 Op = Literal["status", "ramp", "stop", "estop", "record_start", "record_stop", "note"]
 READ_ONLY_OPS: frozenset[str] = frozenset({"status"})
 FORBIDDEN = "forbidden: observers may only read status"
@@ -103,6 +105,8 @@ class Reply(BaseModel):
     ok: bool
     result: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
+    code: Literal["malformed", "forbidden", "input", "failed", "internal"] | None = Field(
+        None, description="kind of error: 'malformed'/'input' are the client's to fix (bad request, bad file)")
 
 
 class ControlCfg(BaseModel):
@@ -306,35 +310,37 @@ class ControlServer:
             try:
                 data = json.loads(raw)
             except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                return self._fail(rid, f"malformed request: not JSON ({exc})")
+                return self._fail(rid, f"malformed request: not JSON ({exc})", "malformed")
             if not isinstance(data, dict):
-                return self._fail(rid, "malformed request: expected a JSON object")
+                return self._fail(rid, "malformed request: expected a JSON object", "malformed")
             if isinstance(data.get("id"), str):
                 rid = data["id"]
             try:
                 req = Request.model_validate(data)
             except ValidationError as exc:
-                return self._fail(rid, f"malformed request: {_describe(exc)}")
+                return self._fail(rid, f"malformed request: {_describe(exc)}", "malformed")
             if role is None:
-                return self._fail(rid, "forbidden: unknown client key")
+                return self._fail(rid, "forbidden: unknown client key", "forbidden")
             if role != "operator" and req.op not in READ_ONLY_OPS:
-                return self._fail(rid, FORBIDDEN)
+                return self._fail(rid, FORBIDDEN, "forbidden")
             handler = self.handlers.get(req.op)
             if handler is None:
-                return self._fail(rid, f"op {req.op!r} is not available in this daemon")
+                return self._fail(rid, f"op {req.op!r} is not available in this daemon", "failed")
             try:
                 result = handler(req.args)
+            except InputError as exc:  # a bad ramp file, a bad path: one line naming file and field
+                return self._fail(rid, str(exc), "input")
             except Exception as exc:  # a failing command must not take the control channel down
-                return self._fail(rid, f"{req.op} failed: {type(exc).__name__}: {exc}")
+                return self._fail(rid, f"{req.op} failed: {type(exc).__name__}: {exc}", "failed")
             reply = Reply(id=rid, ok=True, result=result or {})
             json.dumps(reply.result)  # fail here, with a reply, rather than at send time
             return reply
         except Exception as exc:  # e.g. a handler returned something that is not a JSON dict
-            return self._fail(rid, f"internal error: {type(exc).__name__}: {exc}")
+            return self._fail(rid, f"internal error: {type(exc).__name__}: {exc}", "internal")
 
-    def _fail(self, rid: str, error: str) -> Reply:
+    def _fail(self, rid: str, error: str, code: str = "failed") -> Reply:
         self.errors += 1
-        return Reply(id=rid, ok=False, error=error)
+        return Reply(id=rid, ok=False, error=error, code=code)
 
 
 class ControlClient:
