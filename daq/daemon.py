@@ -477,6 +477,14 @@ def run_sim_ramp(rig: str, ramp: "str | Path | Any", out: str | Path, *, effects
         def make(m, v, a, **kw):
             return RampRunner.from_file(m, path, v, a, **kw)
         label = path
+    from .sim.effectset import parse_effect
+
+    for e in effects:  # bad input: InputError before anything starts
+        parse_effect(e, "effects")
+    drive = load_rig(rig).drive  # refuse a ramp the rig cannot run before starting anything
+    make(None, drive.max_speed_m_per_s, drive.max_accel_m_per_s2, cfg=RampRunnerCfg(time_scale=ramp_time_scale))
+    if out.exists():
+        raise InputError(str(out), "out", "exists; recordings are never overwritten")
     d.start()
     try:
         d.handle_record_start({"path": str(out)})

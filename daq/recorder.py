@@ -430,7 +430,7 @@ def _setup(args: argparse.Namespace) -> tuple[RunWriter, Recorder]:
             raise InputError(args.ramp, "(file)", exc.strerror or str(exc)) from None
     writer = RunWriter(wcfg)
     try:
-        rec = Recorder(writer, rcfg, log=lambda line: print(line, file=sys.stderr, flush=True))
+        rec = Recorder(writer, rcfg, log=lambda line: _say(line, sys.stderr))
     except zmq.ZMQError as exc:
         raise InputError(args.endpoint, "--endpoint", str(exc)) from None
     try:
@@ -439,8 +439,16 @@ def _setup(args: argparse.Namespace) -> tuple[RunWriter, Recorder]:
     except OSError as exc:
         rec.close()
         raise InputError(str(out), "-o", f"cannot create ({exc})") from None
-    writer.on_new_stream = lambda name: print(f"stream {name}", flush=True)
+    writer.on_new_stream = lambda name: _say(f"stream {name}")
     return writer, rec
+
+
+def _say(line: str, stream=None) -> None:
+    """Print, but never let a reader that went away (a killed parent's pipe) stop the recording."""
+    try:
+        print(line, file=stream or sys.stdout, flush=True)
+    except (BrokenPipeError, OSError, ValueError):
+        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -469,7 +477,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rec.run(args.duration)
     except Exception as exc:  # a write error (disk full, ...): keep what is on disk, say why, exit non-zero
-        print(f"recorder: stopped by {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        _say(f"recorder: stopped by {type(exc).__name__}: {exc}", sys.stderr)
         rc = 1
     try:
         if orphaned.is_set():
@@ -478,12 +486,12 @@ def main(argv: list[str] | None = None) -> int:
                     count=rec.sub.stats.lost_blocks)
         writer.close()
     except Exception as exc:
-        print(f"recorder: closing failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        _say(f"recorder: closing failed: {type(exc).__name__}: {exc}", sys.stderr)
         rc = 1
     finally:
         rec.close()
-    print(f"closed {writer.path} samples={writer.samples_written} lost_blocks={rec.sub.stats.lost_blocks}",
-          file=sys.stderr, flush=True)
+    _say(f"closed {writer.path} samples={writer.samples_written} lost_blocks={rec.sub.stats.lost_blocks}",
+         sys.stderr)
     return rc
 
 

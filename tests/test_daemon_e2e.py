@@ -1,0 +1,322 @@
+"""The daemon end to end through its command line and control socket, against a simulated bench.
+
+Each daemon here is a real ``daq daemon --sim`` process: the simulated bench runs in its own
+process (it outlives the daemon), the estimator and the recorder in theirs. Waits are
+event-based (ready lines, status polls) with generous timeouts; no assertion depends on
+how fast this machine is, except the watchdog bound, which is seconds wide.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import zmq
+
+from daq.config import load_rig
+from daq.control import FORBIDDEN, ControlClient, Reply
+from sim_backends.process import request as sim_request
+
+ROOT = Path(__file__).resolve().parent.parent
+SHORT = """start_m_per_s = 0.0
+[[segment]]
+kind = "linear"
+duration_s = 0.5
+to_m_per_s = 0.15
+[[segment]]
+kind = "hold"
+duration_s = 1.5
+[[segment]]
+kind = "linear"
+duration_s = 0.5
+to_m_per_s = 0.0
+"""
+LONG = """start_m_per_s = 0.0
+[[segment]]
+kind = "linear"
+duration_s = 0.5
+to_m_per_s = 0.15
+[[segment]]
+kind = "hold"
+duration_s = 120.0
+"""
+TOO_FAST = 'start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.1\nto_m_per_s = 0.4\n'
+START_S = 180.0  # first start compiles/loads numba caches; a loaded CI machine is slow
+
+
+def daq(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "daq.cli", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+class DaemonProc:
+    """``daq daemon --rig brake-2dof --sim`` as a subprocess; parses its ready line."""
+
+    def __init__(self, tmp: Path, *extra: str) -> None:
+        self.tmp = tmp
+        self.data = tmp / "data"
+        self.proc = subprocess.Popen([sys.executable, "-m", "daq.cli", "daemon", "--rig", "brake-2dof", "--sim",
+                                      "--data-dir", str(self.data), "--control", "tcp://127.0.0.1:0",
+                                      "--bus", "tcp://127.0.0.1:0", "--workdir", str(tmp / "dev"), *extra],
+                                     cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        box: list[str] = []
+        th = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
+        th.start()
+        th.join(START_S)
+        line = box[0] if box else ""
+        if "ready" not in line:
+            self.proc.kill()
+            raise AssertionError(f"daemon did not start: {line!r}")
+        fields = dict(re.findall(r"(\w+)=(\S+)", line))
+        self.endpoint = fields["control"]
+        self.sim_control = fields["sim_control"]
+        self.sim_pid = int(fields["sim_bench_pid"])
+        self.rest: list[str] = []
+        threading.Thread(target=lambda: self.rest.extend(self.proc.stdout), daemon=True).start()
+
+    def ctl(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+        return daq("ctl", "--endpoint", self.endpoint, *args, timeout=timeout)
+
+    def status(self) -> dict:
+        r = self.ctl("status", "--json")
+        assert r.returncode == 0, r.stderr
+        return json.loads(r.stdout)
+
+    def sim(self) -> dict:
+        return sim_request(self.sim_control, "status")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        try:  # the bench outlives the daemon by design: end it
+            sim_request(self.sim_control, "exit", timeout_s=2.0)
+        except TimeoutError:
+            pass
+        _wait_gone(self.sim_pid, 10.0)
+        if _alive(self.sim_pid):
+            os.kill(self.sim_pid, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_gone(pid: int, timeout: float) -> bool:
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if not _alive(pid):
+            return True
+        time.sleep(0.05)
+    return not _alive(pid)
+
+
+def _wait_for(pred, timeout: float, what: str):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        got = pred()
+        if got:
+            return got
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _kinds(f: h5py.File) -> list[str]:
+    return [k.decode() if isinstance(k, bytes) else k for k in f["events"]["kind"]]
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory):
+    d = DaemonProc(tmp_path_factory.mktemp("e2e"))
+    yield d
+    d.close()
+
+
+# ----------------------------------------------------------------------------- a ramp, recorded
+
+
+def test_ctl_ramp_runs_and_the_recording_holds_every_channel_and_the_estimator(daemon):
+    ramp = daemon.tmp / "short.toml"
+    ramp.write_text(SHORT)
+    out = daemon.tmp / "run.h5"
+    r = daemon.ctl("record", "start", "--path", str(out))
+    assert r.returncode == 0, r.stderr
+    r = daemon.ctl("ramp", str(ramp))
+    assert r.returncode == 0, r.stderr + r.stdout
+    assert "finished" in r.stdout and "running" in r.stdout  # progress shown until the end
+    assert daemon.ctl("note", "pad", "conditioned").returncode == 0
+    st = daemon.status()
+    assert st["ramp"]["state"] == "finished" and st["estimator"]["alive"]
+    assert st["estimator"]["blocks_per_s"] > 50  # its own process keeps up with the ~100 blocks/s laser stream
+    assert st["recording"]["path"] == str(out)
+    r = daemon.ctl("record", "stop")
+    assert r.returncode == 0, r.stderr
+    rig = load_rig("brake-2dof")
+    with h5py.File(out) as f:  # closed cleanly: a plain open works
+        streams = f["streams"]
+        channels = {c for s in streams.values() for c in s.keys()} - {"t", "device_t"}
+        assert set(rig.channels) <= channels, set(rig.channels) - channels  # every channel of the rig
+        kinds = _kinds(f)
+        for bad in ("lost_frames", "lost_blocks", "gap", "disconnected", "rejected", "stop_truncated"):
+            assert bad not in kinds, bad  # nothing that would explain (or hide) a gap
+        laser = streams["laser_serial"]
+        dev, rate = laser["device_t"][()], laser.attrs["rate_hz"]
+        assert dev.size > 2000 and np.max(np.diff(dev)) < 1.5 / rate  # not one laser frame missing
+        for name in ("laser_serial", "motor", "thermocouple", "estimator"):
+            t = streams[name]["t"][()]
+            assert t.size > 10 and np.all(np.diff(t) >= 0) and np.max(np.diff(t)) < 1.0, name  # steady, in order
+        f_est = streams["estimator/F_est"][()]
+        assert f_est.size > 1000 and np.isfinite(f_est).mean() > 0.9  # the estimator's output is in the file
+        vb_set, vb = streams["motor/vb_set"][()], streams["motor/vb"][()]
+        assert np.max(vb_set) == pytest.approx(0.15, abs=1e-4) and np.max(vb) > 0.14
+        assert kinds.count("ramp_segment") >= 6 and "ramp_finished" in kinds and "note" in kinds
+
+
+def test_ramp_beyond_limits_is_refused_before_motion(daemon):
+    ramp = daemon.tmp / "fast.toml"
+    ramp.write_text(TOO_FAST)
+    before = daemon.sim()
+    r = daemon.ctl("ramp", str(ramp))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and str(ramp) in r.stderr and "acceleration" in r.stderr
+    time.sleep(0.5)
+    after = daemon.sim()
+    assert after["belt_speed"] == 0.0 and after["setpoint"] == 0.0 and after["target"] == 0.0
+    assert after["motor_state"] == before["motor_state"] != "RUNNING"  # the regulator was never enabled
+
+
+def test_bad_ctl_input_exits_2_naming_the_file(daemon):
+    r = daemon.ctl("ramp", str(daemon.tmp / "missing.toml"))
+    assert r.returncode == 2 and "missing.toml" in r.stderr and r.stderr.count("\n") == 1
+    bad = daemon.tmp / "bad.toml"
+    bad.write_text('[[segment]]\nkind = "warp"\n')
+    r = daemon.ctl("ramp", str(bad))
+    assert r.returncode == 2 and "bad.toml" in r.stderr and "kind" in r.stderr
+
+
+def test_malformed_requests_get_error_replies_and_the_daemon_keeps_running(daemon):
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(daemon.endpoint)
+    try:
+        for payload, expect in ((b"\x00\xff garbage", "not JSON"), (b"[]", "JSON object"),
+                                (json.dumps({"op": "launch", "args": {}, "id": "1"}).encode(), "op"),
+                                (json.dumps({"op": "ramp", "args": {"file": 5}, "id": "2"}).encode(), "args.file"),
+                                (json.dumps({"op": "note", "args": {"text": ["x"]}, "id": "3"}).encode(), "args.text"),
+                                (json.dumps({"op": "status", "args": {}, "id": 4}).encode(), "id")):
+            sock.send(payload)
+            assert sock.poll(30_000), payload
+            reply = Reply.model_validate_json(sock.recv())
+            assert not reply.ok and reply.code == "malformed" and expect in reply.error, (payload, reply)
+    finally:
+        sock.close()
+    st = daemon.status()  # still answering, still acquiring
+    assert st["streams"]["laser_serial"]["rate_hz"] > 500 and st["estimator"]["alive"]
+
+
+def test_status_text_shows_streams_rates_drops_belt_and_estimator(daemon):
+    r = daemon.ctl("status")
+    assert r.returncode == 0, r.stderr
+    for word in ("laser_serial", "samples/s", "drops", "belt", "measured", "estimator", "F_est"):
+        assert word in r.stdout, word
+
+
+# ----------------------------------------------------------------------------- faults
+
+
+def test_kill9_of_the_daemon_the_regulator_watchdog_stops_the_belt(tmp_path):
+    d = DaemonProc(tmp_path)
+    try:
+        ramp = tmp_path / "long.toml"
+        ramp.write_text(LONG)
+        assert d.ctl("record", "start", "--path", str(tmp_path / "killed.h5")).returncode == 0
+        assert d.ctl("ramp", str(ramp), "--no-wait").returncode == 0
+        _wait_for(lambda: d.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+        st = d.status()
+        children = [st["estimator"]["pid"], st["recording"]["pid"]]
+        os.kill(d.proc.pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        d.proc.wait(10)
+        sim = _wait_for(lambda: (s := d.sim())["belt_speed"] <= 1e-3 and s, 30, "the belt at rest")
+        stopped_s = time.monotonic() - t0
+        print(f"belt at rest {stopped_s:.2f} s after kill -9")  # 0.5 s watchdog + 0.3 s ramp at max_accel
+        assert sim["motor_state"] == "WATCHDOG" and sim["watchdog_trips"] == 1
+        assert stopped_s < 10.0  # bounded by the watchdog, not by anything the dead daemon could do
+        for pid in children:  # estimator and recorder notice their parent is gone and exit
+            assert _wait_gone(pid, 30), pid
+        with h5py.File(tmp_path / "killed.h5") as f:  # the orphaned recorder closed its file cleanly
+            assert "parent_gone" in _kinds(f) and f["streams/laser_serial/x1"].size > 500
+    finally:
+        d.close()
+
+
+def test_sigterm_ramps_down_exits_0_and_closes_the_recording(tmp_path):
+    d = DaemonProc(tmp_path)
+    try:
+        ramp = tmp_path / "long.toml"
+        ramp.write_text(LONG)
+        out = tmp_path / "term.h5"
+        assert d.ctl("record", "start", "--path", str(out)).returncode == 0
+        assert d.ctl("ramp", str(ramp), "--no-wait").returncode == 0
+        _wait_for(lambda: d.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(60) == 0
+        assert any("controlled ramp-down" in line for line in d.rest)
+        assert _wait_gone(d.sim_pid, 30)  # a clean shutdown also ends the bench it started (at rest)
+        with h5py.File(out) as f:  # closed and readable
+            kinds = _kinds(f)
+            vb = f["streams/motor/vb"][()]
+        assert "ramp_stopped" in kinds and kinds[-1] == "stop" and "watchdog" not in kinds
+        assert vb.max() > 0.14 and abs(vb[-1]) < 5e-3  # the ramp-down is in the file, down to rest
+    finally:
+        d.close()
+
+
+# ----------------------------------------------------------------------------- CURVE
+
+
+def test_curve_socket_no_keys_refused_observer_reads_operator_commands(tmp_path):
+    keys = tmp_path / "keys"
+    r = daq("ctl", "keygen", str(keys), "--operator", "alice", "--observer", "olga")
+    assert r.returncode == 0, r.stderr
+    d = DaemonProc(tmp_path, "--keys", str(keys))  # CURVE forced on loopback
+    try:
+        with ControlClient(d.endpoint, timeout_s=1.5) as c, pytest.raises(TimeoutError):
+            c.request("stop")  # no keys: the handshake fails, nothing reaches a handler
+        r = d.ctl("--timeout", "1.5", "status")  # ctl without keys: no answer, exit 1
+        assert r.returncode == 1 and "no reply" in r.stderr
+        olga = str(keys / "clients" / "olga")
+        r = daq("ctl", "--endpoint", d.endpoint, "--keys", olga, "status", "--json")
+        assert r.returncode == 0 and json.loads(r.stdout)["rig"] == "brake-2dof"
+        ramp = tmp_path / "short.toml"
+        ramp.write_text(SHORT)
+        for args in (("ramp", str(ramp)), ("stop",), ("estop",), ("record", "start")):
+            r = daq("ctl", "--endpoint", d.endpoint, "--keys", olga, *args)
+            assert r.returncode == 1 and FORBIDDEN in r.stderr, args
+        assert d.sim()["motor_state"] == "DISABLED"  # the observer's ramp never reached the motor
+        r = daq("ctl", "--endpoint", d.endpoint, "--keys", str(keys / "clients" / "alice"), "stop")
+        assert r.returncode == 0 and json.loads(r.stdout) == {"stopping": True}
+    finally:
+        d.close()
