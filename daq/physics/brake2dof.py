@@ -18,7 +18,7 @@ from scipy import optimize
 
 from .contact import AUX, N_AUX
 from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, normal_load, ramp_eval, smooth_sign
-from .effects import static_factor, stick_rates_if_read, temperature_factor
+from .effects import static_factor, stick_rates_if_read, temperature_factor, user_mu_factor
 from .friction import mu_brake
 
 RIG_ID = "brake-2dof"
@@ -80,6 +80,7 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     sf = static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
     mu = mu_brake(v_rel, p[P.mu0], p[P.gamma], p[P.alpha], p[P.beta] * sf)
     mu = mu * temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) + e[E.VS_D] * v_rel
+    mu = mu * user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
     f = mu * n
 
     z2 = x2 + y2

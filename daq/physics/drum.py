@@ -21,7 +21,7 @@ from .jit import kernel
 
 from .contact import AUX
 from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, normal_load, ramp_eval, smooth_sign
-from .effects import static_factor, stick_rates_if_read, temperature_factor
+from .effects import static_factor, stick_rates_if_read, temperature_factor, user_mu_factor
 from .friction import mu_drum
 
 RIG_ID = "drum-pendulum"
@@ -68,6 +68,7 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     sf = static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
     mu = mu_drum(v_rel, p[P.A], p[P.B], p[P.C], p[P.E0], p[P.EPS], sf)
     mu = mu * temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) + e[E.VS_D] * v_rel
+    mu = mu * user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
     f = mu * n
 
     z = n_inst + spring * math.sin(phi) - p[P.m] * p[P.Rc] * w * w  # bearing thrust, eq. (1) row 1

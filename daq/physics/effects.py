@@ -50,6 +50,10 @@ class E(IntEnum):
     TH_DRIFT = 24  # ambient drift [K/s]
     FR_TAU = 25  # force-rate: time constant of the load-rate tracker while stuck [s]
     ST_RESET = 26  # stick-time: decay time of the stick clock while slipping [s]
+    USER0 = 27  # parameters of a user effect (daq/models/user_effects.py), neutral 0
+    USER1 = 28
+    USER2 = 29
+    USER3 = 30
 
 
 N_E = len(E)
@@ -249,6 +253,17 @@ def smooth_sign(v: float, eps: float) -> float:
     if eps <= 0.0:
         return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
     return math.tanh(v / eps)
+
+
+@helper
+def user_mu_factor(v_rel: float, t: float, temp: float, travel: float, stick_clock: float,
+                   u0: float, u1: float, u2: float, u3: float) -> float:
+    """Hook for a user effect: multiplies the friction coefficient. Built-in: 1 (no user effect).
+
+    A model with a user effect rebinds this name in a copy of the rig's rhs to the
+    user's compiled function (daq/models/user_effects.py); the package is not edited.
+    """
+    return 1.0
 
 
 @helper

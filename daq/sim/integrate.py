@@ -64,7 +64,7 @@ def _rk4_template(s0, t0, dt, n_sub, n_out, p, e, rt, rv):
     return states, auxs
 
 
-def make_rk4(rhs, tag: str):
+def make_rk4(rhs, tag: str, cache: bool = True):
     """A compiled RK4 integrator calling ``rhs(t, s, p, e, rt, rv, ds, aux)`` directly.
 
     The template's code is rebound with ``rhs`` as a global and a per-rig qualified
@@ -77,4 +77,4 @@ def make_rk4(rhs, tag: str):
     fn.__qualname__ = f"rk4_{tag}"
     fn.__module__ = __name__
     fn.__doc__ = _rk4_template.__doc__
-    return njit(cache=True, error_model="numpy")(fn)
+    return njit(cache=cache, error_model="numpy")(fn)

@@ -1,0 +1,128 @@
+"""Model versus measurement: the error, its noise floor, and where the model fails.
+
+Why these breakdowns: a single error number says *that* a model fails; the
+breakdown by regime (stick/creep, slip, accelerating vs decelerating sliding,
+belt-speed bands), by time and by signal says *where*, which is what points to
+the missing physics. Forward-simulation invariants (stick-slip frequency, slip
+amplitude, stick fraction, spectrogram) judge the model on cycle features,
+which phase drift cannot swamp.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..analysis.spectral import dominant_frequency, paper_spectrogram
+from .session import Fitted, Session
+
+N_TIME_BINS = 10
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(math.sqrt(np.mean(x * x))) if x.size else float("nan")
+
+
+def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Sample indices and residuals (model - measured) of every window (fit and held-out), start excluded."""
+    pr = fitted.problem
+    fw, hw = fitted.fit.windows, fitted.held.windows
+    parts_idx, parts = [], {k: [] for k in session.m.outputs}
+    for wins, vel in ((fw, fitted.fit.velocities), (hw, fitted.held.velocities)):
+        if wins.size == 0 or wins is hw and hw is fw:
+            continue
+        shot = pr.shoot(fitted.values, wins, vel)
+        parts_idx.append(shot.index[:, 1:].ravel())
+        for k in parts:
+            parts[k].append((shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel())
+    idx = np.concatenate(parts_idx)
+    order = np.argsort(idx, kind="stable")
+    return idx[order], {k: np.concatenate(v)[order] for k, v in parts.items()}
+
+
+def regimes(session: Session, idx: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean masks over the residual samples, from the data (not from the model under test)."""
+    m = session.m
+    v_stick = session.cfg.contact.v_stick_m_per_s
+    vr = m.v_rel[idx]
+    stuck = np.abs(vr) < v_stick
+    grow = m.d_abs_v_rel[idx] > 0
+    out = {"stick/creep": stuck, "slip": ~stuck, "slip, accelerating": ~stuck & grow,
+           "slip, decelerating": ~stuck & ~grow}
+    vb = m.drive_measured[idx]
+    edges = np.quantile(m.drive_measured, [0.0, 1 / 3, 2 / 3, 1.0])
+    for i in range(3):
+        lo, hi = edges[i], edges[i + 1]
+        sel = (vb >= lo) & (vb <= hi if i == 2 else vb < hi)
+        out[f"belt speed {lo * 1e3:.0f}-{hi * 1e3:.0f} mm/s"] = sel
+    return out
+
+
+def invariants(session: Session, t: np.ndarray, x: np.ndarray, v_rel: np.ndarray) -> dict[str, float]:
+    """Cycle features of one signal: stick-slip frequency, slip amplitude, stick fraction."""
+    xd = x - np.polynomial.polynomial.polyval(t, np.polynomial.polynomial.polyfit(t, x, 3))
+    f = dominant_frequency(t, xd, fmin=0.5) if t.size > 64 else float("nan")
+    # slip amplitude: median peak-to-peak per period of the dominant frequency
+    n = max(2, int(round(session.m.rate / f))) if np.isfinite(f) and f > 0 else xd.size
+    k = xd.size // n
+    p2p = np.ptp(xd[: k * n].reshape(k, n), axis=1) if k else np.array([np.ptp(xd)])
+    return {"stick_slip_frequency_Hz": float(f), "slip_amplitude": float(np.median(p2p)),
+            "stick_fraction": float(np.mean(np.abs(v_rel) < session.cfg.contact.v_stick_m_per_s))}
+
+
+def spectral_line(t: np.ndarray, x: np.ndarray, fmin: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """The strongest line of paper 001's spectrogram over time (for side-by-side comparison)."""
+    f, tt, pxx = paper_spectrogram(t, x - x.mean())
+    ok = f >= fmin
+    return tt, f[ok][np.argmax(pxx[ok], axis=0)]
+
+
+def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
+    """The SPEC's compare JSON: error and noise floor of the primary signal, and the breakdowns."""
+    m = session.m
+    primary = session.primary
+    idx, res = residual_samples(session, fitted)
+    out: dict = {
+        "data": session.source,
+        "model": fitted.model.describe(),
+        "model_digest": fitted.model.digest(),
+        "error": _rms(res[primary]),
+        "error_unit": m.units[primary],
+        "error_signal": primary,
+        "noise_floor": floor[primary],
+        "error_held_out": fitted.rms(primary, "held"),
+        "error_definition": "rms of model - measured over short windows simulated from the data's state at their "
+                            "start (multiple shooting; start velocities fitted), after fitting the free parameters",
+        "parameters": {k: {"value": fitted.values[k], "std": fitted.fit.std.get(k)} for k in fitted.model.free_names()},
+        "by_signal": {k: {"error": _rms(res[k]), "unit": m.units[k], "noise_floor": floor[k],
+                          "noise_sigma": m.sigma[k]} for k in m.outputs},
+    }
+    out["by_regime"] = {name: {"error": _rms(res[primary][mask]), "fraction": float(mask.mean())}
+                        for name, mask in regimes(session, idx).items() if mask.any()}
+    t_idx = m.t[idx]
+    edges = np.linspace(m.t[0], m.t[-1], N_TIME_BINS + 1)
+    bins = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (t_idx >= a) & (t_idx < b)
+        if sel.any():
+            bins.append({"t0": float(a), "t1": float(b), "error": _rms(res[primary][sel])})
+    out["by_time"] = bins
+    worst = max(out["by_regime"].items(), key=lambda kv: kv[1]["error"] if np.isfinite(kv[1]["error"]) else -1)
+    out["worst_regime"] = worst[0]
+    # forward simulation over the whole record
+    fidx, pred, states, aux = session.free_run(fitted)
+    from ..physics.contact import AUX
+
+    tt = m.t[fidx]
+    meas_inv = invariants(session, tt, m.outputs[primary][fidx], m.v_rel[fidx])
+    model_inv = invariants(session, tt, pred[primary], aux[:, AUX.V_REL])
+    out["invariants"] = {k: {"measured": meas_inv[k], "model": model_inv[k]} for k in meas_inv}
+    try:
+        ts, fm = spectral_line(tt, m.outputs[primary][fidx])
+        _, fs = spectral_line(tt, pred[primary])
+        out["spectral_line"] = {"t": ts.tolist(), "measured_Hz": fm.tolist(), "model_Hz": fs.tolist()}
+    except ValueError:
+        out["spectral_line"] = None
+    out["_plot"] = {"idx": idx, "res": res, "fidx": fidx, "pred": pred, "states": states, "aux": aux}
+    return out

@@ -1,0 +1,291 @@
+"""Measurements as a model sees them: which signals it predicts, their noise, the drive, window start states.
+
+Why per rig: each rig measures different things (brake: positions only; drum:
+angle, velocity, thrust; belt: mass positions) and a simulated window needs a
+full state at its start. Everything rig-specific about *data* lives here; the
+physics stays in daq/physics and the fitting in daq/models/shooting.py.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ..config import RigConfig
+from ..errors import InputError
+from ..io.interchange import Recording
+from ..physics import brake2dof, drum
+from ..physics.contact import AUX
+from ..physics.effects import TAIL, stick_rates
+from ..physics.jit import kernel
+from ..sim.rigs import SimRig
+
+REQUIRED = {
+    "brake-2dof": ("x1", "phi", "vb"),
+    "drum-pendulum": ("phi", "vel", "thrust", "drum_speed"),
+    "belt-ndof": ("x1", "vb"),
+}
+
+
+def sg(x: np.ndarray, rate: float, half_s: float, deriv: int = 0, degree: int = 3) -> np.ndarray:
+    """Centred Savitzky-Golay smoothing/derivative over +-half_s (at least +-3 samples)."""
+    half = max(3, int(round(half_s * rate)))
+    n = 2 * half + 1
+    if n >= x.size:
+        n = x.size - 1 if x.size % 2 == 0 else x.size
+    return savgol_filter(x, n, min(degree, n - 1), deriv=deriv, delta=1.0 / rate, mode="interp")
+
+
+def noise_sigma(x: np.ndarray) -> float:
+    """White-noise level from third differences (MAD, robust to sparse stick-slip transitions).
+
+    An upper bound when the signal itself has energy near the sampling rate (slow sampling).
+    """
+    d3 = np.diff(x, 3)
+    if d3.size < 8:
+        return float("nan")
+    mad = np.median(np.abs(d3 - np.median(d3)))
+    return float(1.4826 * mad / math.sqrt(20.0))
+
+
+@dataclass
+class Measured:
+    """One recording prepared for a rig's model."""
+
+    rig: str
+    source: str
+    t: np.ndarray
+    rate: float
+    outputs: dict[str, np.ndarray]  # the signals a model predicts
+    units: dict[str, str]
+    sigma: dict[str, float]  # white-noise level per output
+    sigma_source: dict[str, str]
+    drive_measured: np.ndarray  # surface speed of belt/drum [m/s], smoothed
+    drive_command: np.ndarray  # what the base model is driven with [m/s]
+    command_source: str
+    temp: np.ndarray | None
+    context: dict[str, np.ndarray] = field(default_factory=dict)  # quantities residuals may correlate with
+    v_rel: np.ndarray | None = None  # data-derived relative sliding speed (for regimes)
+    d_abs_v_rel: np.ndarray | None = None
+
+    @property
+    def primary(self) -> str:
+        return next(iter(self.outputs))
+
+    @property
+    def n(self) -> int:
+        return self.t.size
+
+
+class RigData(ABC):
+    """What a rig's model needs from data: predicted signals and the state at a window's start."""
+
+    rig: str
+    velocity_slots: tuple[int, ...]  # state entries estimated per window (free in multiple shooting)
+
+    def __init__(self, cfg: RigConfig) -> None:
+        self.cfg = cfg
+
+    def prepare(self, rec: Recording, source: str) -> Measured:
+        for ch in REQUIRED[self.rig]:
+            if ch not in rec.channels:
+                raise InputError(source, ch, f"missing column (a {self.rig} model needs {', '.join(REQUIRED[self.rig])})")
+            if not np.all(np.isfinite(rec.channels[ch])):
+                raise InputError(source, ch, "contains NaN or infinite values")
+        t = np.asarray(rec.t, dtype=float)
+        dt = np.diff(t)
+        if t.size < 50:
+            raise InputError(source, "t", f"{t.size} samples: too few to compare a model with")
+        rate = 1.0 / float(np.median(dt))
+        if np.max(np.abs(dt * rate - 1.0)) > 0.01:
+            raise InputError(source, "t", "samples must be evenly spaced (resample first)")
+        return self._prepare(rec, t, rate, source)
+
+    @abstractmethod
+    def _prepare(self, rec: Recording, t: np.ndarray, rate: float, source: str) -> Measured: ...
+
+    @abstractmethod
+    def predict(self, sim: SimRig, states: np.ndarray) -> dict[str, np.ndarray]:
+        """The output signals from simulated states (last axis = state)."""
+
+    @abstractmethod
+    def start_state(self, sim: SimRig, m: Measured, i: int) -> np.ndarray:
+        """Full state (mechanics + contact tail) at sample i, velocities from the data."""
+
+    def synthetic_extras(self, sim: SimRig, states: np.ndarray, aux: np.ndarray, channels: dict[str, np.ndarray],
+                         rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Channels besides the predicted outputs that a synthetic copy of the data must take from the model."""
+        return {}
+
+    def _drive(self, rec: Recording, t: np.ndarray, rate: float, measured: np.ndarray,
+               command_channel: str | None) -> tuple[np.ndarray, np.ndarray, str]:
+        # drive ripple and lag live at seconds; +-0.25 s keeps them and removes the tachometer's noise
+        smooth = sg(measured, rate, 0.25, degree=3)
+        if command_channel and command_channel in rec.channels and np.all(np.isfinite(rec.channels[command_channel])):
+            return smooth, np.asarray(rec.channels[command_channel], dtype=float), command_channel
+        # no command recorded: the slow trend of the measured speed (what a programme would have been)
+        tt = (t - t[0]) / max(t[-1] - t[0], 1e-9)
+        coef = np.polynomial.polynomial.polyfit(tt, measured, 3)
+        return smooth, np.polynomial.polynomial.polyval(tt, coef), "cubic fit of the measured speed"
+
+    def _sigma(self, name: str, x: np.ndarray) -> tuple[float, str]:
+        """Noise from the data; the rig config's instrument figure when the data estimate is signal-dominated."""
+        est = noise_sigma(x)
+        ch = self.cfg.channels.get(name)
+        if ch is not None and (ch.noise_std > 0 or ch.lsb > 0):
+            nominal = math.sqrt(ch.noise_std**2 + ch.lsb**2 / 12.0)
+            if not np.isfinite(est) or est > 3.0 * nominal:
+                return nominal, "rig config (data estimate signal-dominated)"
+            if est < nominal / 3.0:
+                return max(est, 1e-12), "data"
+        return (est if np.isfinite(est) and est > 0 else 1e-9), "data"
+
+    def _temp(self, rec: Recording, rate: float) -> np.ndarray | None:
+        if "temp" in rec.channels and np.all(np.isfinite(rec.channels["temp"])):
+            return sg(np.asarray(rec.channels["temp"], dtype=float), rate, 0.5, degree=1)
+        return None
+
+
+@kernel
+def _stick_tail(v_rel, load_rate, dt, n_sub, v_stick, fr_tau, st_reset, ts_out, q_out):
+    """The contact tail's stick clock and load-rate memory, integrated along the data's v_rel.
+
+    Why integrate the model's own rates (effects.stick_rates) instead of counting
+    stuck samples: the clock's rise and decay depend on how deep the contact sticks;
+    a window starting with a clock the model would not have produced starts wrong.
+    """
+    ts = 0.0
+    q = load_rate[0]
+    h = dt / n_sub
+    for i in range(v_rel.size):
+        ts_out[i] = ts
+        q_out[i] = q
+        for _ in range(n_sub):
+            d_ts, d_q = stick_rates(v_rel[i], load_rate[i], ts, q, v_stick, fr_tau, st_reset)
+            ts += h * d_ts
+            q += h * d_q
+
+
+def stick_tail(v_rel: np.ndarray, load_rate: np.ndarray, rate: float, cfg: RigConfig) -> tuple[np.ndarray, np.ndarray]:
+    c = cfg.contact
+    n_sub = max(1, int(math.ceil((1.0 / rate) / min(2e-4, 0.2 * c.stick_reset_tau_s))))
+    ts, q = np.empty(v_rel.size), np.empty(v_rel.size)
+    _stick_tail(np.ascontiguousarray(v_rel, dtype=float), np.ascontiguousarray(load_rate, dtype=float),
+                1.0 / rate, n_sub, c.v_stick_m_per_s, c.force_rate_tau_s, c.stick_reset_tau_s, ts, q)
+    return ts, q
+
+
+class BrakeData(RigData):
+    rig = "brake-2dof"
+    velocity_slots = (1, 3)
+
+    def _prepare(self, rec, t, rate, source):
+        x1 = np.asarray(rec.channels["x1"], dtype=float)
+        phi = np.asarray(rec.channels["phi"], dtype=float)
+        vb = np.asarray(rec.channels["vb"], dtype=float)
+        drive_m, drive_c, csrc = self._drive(rec, t, rate, vb, "vb_set")
+        sig = {}
+        src = {}
+        for name, x in (("x1", x1), ("phi", phi)):
+            sig[name], src[name] = self._sigma(name, x)
+        r = self.cfg.mechanics.r_m
+        half = 0.006 if rate >= 500 else 1.5 / rate
+        x1d = sg(x1, rate, half, 1)
+        y1d = r * sg(phi, rate, half, 1)
+        v_rel = x1d - drive_m
+        m = Measured(self.rig, source, t, rate, {"x1": x1, "phi": phi}, {"x1": "m", "phi": "rad"}, sig, src,
+                     drive_m, drive_c, csrc, self._temp(rec, rate))
+        m.v_rel = v_rel
+        m.d_abs_v_rel = sg(np.abs(v_rel), rate, half, 1, degree=2)
+        mech = self.cfg.mechanics
+        load_rate = (mech.k1_N_per_m + mech.k2_N_per_m) * x1d + mech.k2_N_per_m * y1d  # as brake2dof.rhs
+        ts, q = stick_tail(v_rel, load_rate, rate, self.cfg)
+        m.context = {"x1_smooth": sg(x1, rate, half), "y1_smooth": r * sg(phi, rate, half), "x1_dot": x1d,
+                     "y1_dot": y1d, "stick_clock": ts, "load_rate": q}
+        return m
+
+    def predict(self, sim, states):
+        return {"x1": states[..., 0], "phi": states[..., 2] / sim.p[brake2dof.P.r]}
+
+    def start_state(self, sim, m, i):
+        c = m.context
+        s = np.zeros(brake2dof.N_STATE)
+        s[0], s[1], s[2], s[3] = c["x1_smooth"][i], c["x1_dot"][i], c["y1_smooth"][i], c["y1_dot"][i]
+        n = brake2dof.N_MECH
+        s[n + TAIL.TS] = c["stick_clock"][i]
+        s[n + TAIL.Q] = c["load_rate"][i]
+        s[n + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
+        s[n + TAIL.VLAG] = m.drive_measured[i]
+        return s
+
+
+class DrumData(RigData):
+    """drum-pendulum: predicts phi and the surface velocity; the runout phase comes from the thrust gauge."""
+
+    rig = "drum-pendulum"
+    velocity_slots = (1,)
+
+    def _prepare(self, rec, t, rate, source):
+        R = self.cfg.mechanics.R_m
+        phi = np.asarray(rec.channels["phi"], dtype=float)
+        vel = np.asarray(rec.channels["vel"], dtype=float)
+        thrust = np.asarray(rec.channels["thrust"], dtype=float)
+        wd = np.asarray(rec.channels["drum_speed"], dtype=float)
+        drive_m, drive_c, csrc = self._drive(rec, t, rate, R * wd, None)
+        sig, src = {}, {}
+        for name, x in (("phi", phi), ("vel", vel)):
+            sig[name], src[name] = self._sigma(name, x)
+        half = 0.003 if rate >= 500 else 1.5 / rate
+        w = sg(vel, rate, half, 0) / R
+        v_rel = R * w - drive_m
+        m = Measured(self.rig, source, t, rate, {"phi": phi, "vel": vel}, {"phi": "rad", "vel": "m/s"}, sig, src,
+                     drive_m, drive_c, csrc, self._temp(rec, rate))
+        m.v_rel = v_rel
+        m.d_abs_v_rel = sg(np.abs(v_rel), rate, half, 1, degree=2)
+        # drum angle from the surface travel; its offset from the thrust gauge's runout (one fit per run)
+        travel = np.concatenate([[0.0], np.cumsum(0.5 * (drive_m[1:] + drive_m[:-1]) / rate)])
+        theta = travel / R
+        p_nom, ro = self.cfg.mechanics.thrust_N, self.cfg.mechanics.runout
+        rel = thrust / p_nom - 1.0
+        a, b = np.linalg.lstsq(np.column_stack([np.sin(theta), np.cos(theta)]), rel, rcond=None)[0]
+        theta0 = math.atan2(b, a) if ro > 0 and math.hypot(a, b) > 0.2 * ro else 0.0
+        mech = self.cfg.mechanics
+        load_rate = mech.k_N_per_m * mech.Rs_m**2 * np.cos(2.0 * phi) * w / R  # as drum.rhs
+        ts, q = stick_tail(v_rel, load_rate, rate, self.cfg)
+        m.context = {"phi_smooth": sg(phi, rate, half), "w": w, "travel": R * (theta + theta0),
+                     "stick_clock": ts, "load_rate": q, "thrust": thrust}
+        return m
+
+    def predict(self, sim, states):
+        return {"phi": states[..., 0], "vel": sim.p[drum.P.R] * states[..., 1]}
+
+    def synthetic_extras(self, sim, states, aux, channels, rng):
+        # the thrust gauge reads the model's normal load (its runout phase is the model's own)
+        thrust = aux[:, AUX.N_INST]
+        return {"thrust": thrust + rng.normal(0.0, noise_sigma(channels["thrust"]), thrust.size)}
+
+    def start_state(self, sim, m, i):
+        c = m.context
+        s = np.zeros(drum.N_STATE)
+        s[0], s[1] = c["phi_smooth"][i], c["w"][i]
+        n = drum.N_MECH
+        s[n + TAIL.TS] = c["stick_clock"][i]
+        s[n + TAIL.Q] = c["load_rate"][i]
+        s[n + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
+        s[n + TAIL.VLAG] = m.drive_measured[i]
+        s[n + TAIL.POS] = c["travel"][i]
+        return s
+
+
+RIG_DATA: dict[str, type[RigData]] = {"brake-2dof": BrakeData, "drum-pendulum": DrumData}
+
+
+def rig_data(cfg: RigConfig, source: str = "model") -> RigData:
+    cls = RIG_DATA.get(cfg.rig)
+    if cls is None:
+        raise InputError(source, "rig", f"model fitting is implemented for {', '.join(RIG_DATA)}, not {cfg.rig}")
+    return cls(cfg)

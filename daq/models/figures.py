@@ -1,0 +1,202 @@
+"""Figures of compare, diagnose and history (PNG): what a researcher looks at before reading numbers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..analysis.spectral import paper_spectrogram  # noqa: E402
+from ..io.interchange import atomic_path  # noqa: E402
+from ..physics.contact import AUX  # noqa: E402
+from .data import sg  # noqa: E402
+from .session import Fitted, Session  # noqa: E402
+
+
+def _save(fig, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
+
+
+def _pick_windows(session: Session, n: int = 3) -> np.ndarray:
+    w = session.win.starts.size
+    return np.unique(np.linspace(0, w - 1, n).round().astype(int))
+
+
+def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, title: str = "") -> None:
+    m = session.m
+    primary = session.primary
+    unit = m.units[primary]
+    pr = fitted.problem
+    wins = _pick_windows(session)
+    fw = list(fitted.fit.windows)
+    hw = list(fitted.held.windows)
+    vel = np.array([fitted.fit.velocities[fw.index(w)] if w in fw else fitted.held.velocities[hw.index(w)]
+                    for w in wins])
+    shot = pr.shoot(fitted.values, wins, vel)
+    fig = plt.figure(figsize=(15, 10), constrained_layout=True)
+    gs = fig.add_gridspec(3, 3)
+    # time histories
+    ax = fig.add_subplot(gs[0, :2])
+    for j, w in enumerate(wins):
+        t = m.t[shot.index[j]]
+        ax.plot(t, shot.meas[primary][j], "k.", ms=2, label="measured" if j == 0 else None)
+        ax.plot(t, shot.pred[primary][j], "C1-", lw=1.2, label="model (window from the data's state)" if j == 0 else None)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(f"{primary} [{unit}]")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("measured vs model: early, middle and late windows")
+    # phase plane
+    ax = fig.add_subplot(gs[0, 2])
+    xs = m.outputs[primary]
+    vd = sg(xs, m.rate, 0.006 if m.rate >= 500 else 1.5 / m.rate, 1)
+    for j in range(len(wins)):
+        ii = shot.index[j]
+        ax.plot(xs[ii], vd[ii], "k-", lw=0.6, alpha=0.7, label="measured" if j == 0 else None)
+        pv = np.gradient(shot.pred[primary][j], 1.0 / m.rate)
+        ax.plot(shot.pred[primary][j], pv, "C1-", lw=0.9, label="model" if j == 0 else None)
+    ax.set_xlabel(f"{primary} [{unit}]")
+    ax.set_ylabel(f"d{primary}/dt [{unit}/s]")
+    ax.set_title("phase plane")
+    ax.legend(fontsize=8)
+    # friction vs relative velocity, both branches
+    ax = fig.add_subplot(gs[1, 0])
+    allw = session.win.select(None)
+    vel_all = np.zeros((allw.size, pr.n_vel))
+    vel_all[fitted.fit.windows] = fitted.fit.velocities
+    if fitted.held.windows is not fitted.fit.windows:
+        vel_all[fitted.held.windows] = fitted.held.velocities
+    sh_all = pr.shoot(fitted.values, allw, vel_all)
+    v = sh_all.aux[..., AUX.V_REL].ravel()
+    F = sh_all.aux[..., AUX.F].ravel()
+    dv = np.gradient(np.abs(sh_all.aux[..., AUX.V_REL]), axis=1).ravel()
+    ax.plot(v[dv > 0], F[dv > 0], ".", ms=1, color="C3", label="model, |v_rel| growing")
+    ax.plot(v[dv <= 0], F[dv <= 0], ".", ms=1, color="C0", label="model, |v_rel| shrinking")
+    ax.set_xlabel("v_rel [m/s]")
+    ax.set_ylabel("friction force [N]")
+    ax.set_title("friction vs relative velocity (model, along the windows)")
+    ax.legend(fontsize=7, markerscale=6)
+    # residual by regime
+    ax = fig.add_subplot(gs[1, 1])
+    names = list(result["by_regime"])
+    vals = [result["by_regime"][k]["error"] for k in names]
+    ax.barh(names, vals, color=["C3" if k == result["worst_regime"] else "C0" for k in names])
+    ax.axvline(result["noise_floor"], color="k", ls="--", label="noise floor")
+    ax.set_xlabel(f"rms error [{unit}]")
+    ax.set_title("error by regime")
+    ax.legend(fontsize=8)
+    ax.tick_params(axis="y", labelsize=8)
+    # residual over time
+    ax = fig.add_subplot(gs[1, 2])
+    ms = np.sqrt(np.mean((sh_all.pred[primary][:, 1:] - sh_all.meas[primary][:, 1:]) ** 2, axis=1))
+    tw = m.t[session.win.starts]
+    ax.plot(tw[~session.win.held_out], ms[~session.win.held_out], "o", ms=3, label="fit windows")
+    ax.plot(tw[session.win.held_out], ms[session.win.held_out], "s", ms=3, label="held-out windows")
+    ax.axhline(result["noise_floor"], color="k", ls="--", label="noise floor")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(f"rms error [{unit}]")
+    ax.set_title("error over time")
+    ax.legend(fontsize=8)
+    # forward simulation: spectral line, invariants
+    ax = fig.add_subplot(gs[2, :2])
+    sl = result.get("spectral_line")
+    if sl:
+        ax.plot(sl["t"], sl["measured_Hz"], "k.-", label="measured")
+        ax.plot(sl["t"], sl["model_Hz"], "C1.-", label="model (free run)")
+        ax.set_ylabel("strongest line [Hz]")
+        ax.set_xlabel("t [s]")
+        ax.legend(fontsize=8)
+    ax.set_title("spectrogram line (window 512, overlap 256, 100 Hz, as paper 001)")
+    ax = fig.add_subplot(gs[2, 2])
+    ax.axis("off")
+    lines = [f"error {result['error']:.3g} {unit} (noise floor {result['noise_floor']:.3g})",
+             f"held-out error {result['error_held_out']:.3g}", ""]
+    for k, d in result["invariants"].items():
+        lines.append(f"{k}: measured {d['measured']:.4g}, model {d['model']:.4g}")
+    lines.append("")
+    for k, d in result["by_signal"].items():
+        lines.append(f"{k}: {d['error']:.3g} {d['unit']} (floor {d['noise_floor']:.3g})")
+    ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8)
+    fig.suptitle(title or f"{result['model']} vs {Path(result['data']).name}")
+    _save(fig, path)
+
+
+def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
+    m = session.m
+    primary = session.primary
+    p = result["_plot"]
+    tt = m.t[p["fidx"]]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5), constrained_layout=True, sharey=True)
+    for ax, x, label in ((axes[0], m.outputs[primary][p["fidx"]], "measured"), (axes[1], p["pred"][primary], "model")):
+        f, t, pxx = paper_spectrogram(tt, x - x.mean())
+        ax.pcolormesh(t, f, 10 * np.log10(pxx + 1e-30), shading="auto")
+        ax.set_title(f"{primary}: {label}")
+        ax.set_xlabel("t [s]")
+    axes[0].set_ylabel("f [Hz]")
+    _save(fig, path)
+
+
+def diagnose_figure(session: Session, diag, path: Path) -> None:
+    m = session.m
+    primary = session.primary
+    unit = m.units[primary]
+    fig = plt.figure(figsize=(15, 5), constrained_layout=True)
+    gs = fig.add_gridspec(1, 3)
+    ax = fig.add_subplot(gs[0, 0])
+    names = [c.effect for c in diag.candidates][::-1]
+    red = [c.reduction for c in diag.candidates][::-1]
+    ax.barh(names, red, color=["C2" if (diag.found and n == diag.candidates[0].effect) else "C0" for n in names])
+    ax.axvline(0.5, color="k", ls=":", label="needed to count")
+    ax.set_xlabel("share of excess error removed on held-out windows")
+    ax.set_xlim(min(-0.2, min(red) if red else 0), 1.1)
+    ax.set_title("which effect is missing?")
+    ax.legend(fontsize=8)
+    # evidence: the held-out window where the base model is worst, base vs best candidate
+    ax = fig.add_subplot(gs[0, 1:])
+    base = diag.base
+    hw = base.held.windows
+    if hw.size and diag.candidates:
+        wsel = np.argmax(base.ms_held[primary])
+        w = hw[wsel:wsel + 1]
+        sb = base.problem.shoot(base.values, w, base.held.velocities[wsel:wsel + 1])
+        t = m.t[sb.index[0]]
+        ax.plot(t, sb.meas[primary][0], "k.", ms=3, label="measured (held out)")
+        ax.plot(t, sb.pred[primary][0], "C0-", label=f"model: {base.model.describe()}")
+        best = diag.candidates[0]
+        if best.fitted is not None:
+            bf = best.fitted
+            vel = bf.problem.fit_velocities(bf.values, w, max_iter=10).velocities
+            sc = bf.problem.shoot(bf.values, w, vel)
+            ax.plot(t, sc.pred[primary][0], "C2-", label=f"+ {best.effect}")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(f"{primary} [{unit}]")
+        ax.legend(fontsize=8)
+    ax.set_title("evidence: the held-out window the model fits worst")
+    fig.suptitle(diag.summary[:160] + ("..." if len(diag.summary) > 160 else ""), fontsize=9)
+    _save(fig, path)
+
+
+def history_figure(entries: list[dict], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(10, 4.5), constrained_layout=True)
+    by_data: dict[str, list[dict]] = {}
+    for e in entries:
+        by_data.setdefault(e["data"], []).append(e)
+    for data, es in by_data.items():
+        x = np.arange(len(es))
+        ax.plot(x, [e["error"] for e in es], "o-", label=f"{Path(data).name}: error")
+        ax.plot(x, [e["noise_floor"] for e in es], "k--", lw=0.8)
+        for i, e in enumerate(es):
+            ax.annotate(e["model"].split(" + ", 1)[-1][:40], (i, e["error"]), fontsize=7, rotation=20,
+                        textcoords="offset points", xytext=(4, 4))
+    ax.set_xlabel("compare run (model revision)")
+    unit = entries[0]["error_unit"] if entries else ""
+    ax.set_ylabel(f"error [{unit}]")
+    ax.set_yscale("log")
+    ax.set_title("model error across revisions (dashed: noise floor)")
+    ax.legend(fontsize=8)
+    _save(fig, path)

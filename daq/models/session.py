@@ -1,0 +1,209 @@
+"""One recording against models: load it, cut it into windows once, fit models on the same windows.
+
+Why a session: compare, fit and diagnose all judge models on *the same* windows
+of *the same* data (fit windows and held-out windows), so errors of different
+model revisions can be compared at all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..config import RigConfig
+from ..errors import InputError
+from ..io.interchange import Recording, read_recording
+from .build import Builder
+from .data import Measured, RigData, rig_data
+from .shooting import FitResult, Problem, Windows, make_windows
+from .spec import Model, drive_source, rig_config_for
+
+Progress = Callable[[str], None]
+MIN_CONTINUATION = 8  # samples
+
+
+def load_data(path: str | Path, rig: str | None) -> Recording:
+    """A recording (HDF5) or an interchange CSV/TDMS file; irregular host timestamps are resampled."""
+    p = Path(path)
+    if p.suffix.lower() in (".h5", ".hdf5"):
+        rec = read_recording(p)
+    elif p.suffix.lower() in (".csv", ".tdms"):
+        from ..config import load_rig
+        from ..io.importer import read_table, validate
+
+        if rig is None:
+            raise InputError(str(p), "--rig", "a CSV/TDMS file does not say which rig it is from: give --rig")
+        cfg = load_rig(rig)
+        table = read_table(p)
+        channels, units = validate(table, cfg)
+        rec = Recording(cfg.rig, table.t, {c: table.columns[c][0] for c in channels}, dict(zip(channels, units)))
+    else:
+        raise InputError(str(p), "(file)", "unsupported format (use .h5, .csv or .tdms)")
+    if rig is not None and rec.rig is not None and rec.rig != rig and not Path(rig).suffix:
+        raise InputError(str(p), "rig", f"the recording is from {rec.rig}, not {rig}")
+    return _uniform(rec, str(p))
+
+
+def _uniform(rec: Recording, source: str) -> Recording:
+    """Recorder files carry host timestamps (jitter, NaN where a stream had not started): make them uniform."""
+    t = np.asarray(rec.t, dtype=float)
+    good = np.ones(t.size, bool)
+    for x in rec.channels.values():
+        good &= np.isfinite(x)
+    idx = np.flatnonzero(good)
+    if idx.size < 2:
+        raise InputError(source, "t", "no stretch where every channel has data")
+    lo, hi = idx[0], idx[-1] + 1
+    t = t[lo:hi]
+    ch = {k: np.asarray(v[lo:hi], dtype=float) for k, v in rec.channels.items()}
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        raise InputError(source, "t", "times must increase strictly")
+    rate = 1.0 / float(np.median(dt))
+    if np.max(np.abs(dt * rate - 1.0)) <= 0.01 and all(np.all(np.isfinite(v)) for v in ch.values()):
+        return Recording(rec.rig, t, ch, rec.units, rec.meta, {})
+    tu = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * rate)) + 1) / rate
+    out = {}
+    for k, v in ch.items():
+        ok = np.isfinite(v)
+        out[k] = np.interp(tu, t[ok], v[ok]) if ok.sum() >= 2 else np.full(tu.size, np.nan)
+    return Recording(rec.rig, tu, out, rec.units, {**rec.meta, "resampled_Hz": rate}, {})
+
+
+@dataclass
+class Fitted:
+    """A model fitted on a session's fit windows and scored on its held-out windows."""
+
+    model: Model  # with fitted values (and their std)
+    values: dict[str, float]
+    fit: FitResult  # fit windows
+    held: FitResult  # held-out windows (velocities only)
+    problem: Problem
+    ms_held: dict[str, np.ndarray]  # per held-out window, mean-square error per output
+    ms_fit: dict[str, np.ndarray]
+
+    def rms(self, output: str, which: str = "held") -> float:
+        ms = self.ms_held[output] if which == "held" else (
+            self.ms_fit[output] if which == "fit" else np.concatenate([self.ms_fit[output], self.ms_held[output]]))
+        return float(math.sqrt(np.mean(ms))) if ms.size else float("nan")
+
+
+class Session:
+    def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90,
+                 progress: Progress | None = None) -> None:
+        self.rec = rec
+        self.source = source
+        self.cfg = cfg
+        self.rd: RigData = rig_data(cfg, source)
+        self.m: Measured = self.rd.prepare(rec, source)
+        self.win: Windows = make_windows(self.m, cfg.contact.v_stick_m_per_s, max_windows=max_windows)
+        self.progress = progress or (lambda msg: None)
+        self.continuation = True
+
+    @classmethod
+    def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
+        if rig is not None and rig != model.rig:
+            raise InputError(str(data), "--rig", f"the model is for {model.rig}, not {rig}")
+        rec = load_data(data, model.rig)
+        return cls(rec, str(data), rig_config_for(model), **kw)
+
+    @property
+    def primary(self) -> str:
+        return self.m.primary
+
+    def problem(self, model: Model) -> Problem:
+        return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model))
+
+    def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 25) -> Fitted:
+        """Fit the model's free parameters on the fit windows, then score it on the held-out ones."""
+        pr = self.problem(model)
+        params = model.params()
+        free = model.free_names()
+        bounds = {n: (params[n].lo if params[n].lo is not None else -np.inf,
+                      params[n].hi if params[n].hi is not None else np.inf) for n in free}
+        values = dict(pr.builder.base_values)
+        vel = None
+        if warm is not None:
+            new = self._new_keys(warm.model, model)
+            values.update({k: v for k, v in warm.values.items() if k in values and k not in new})
+            values.update(switched_off(model, new))
+            vel = warm.fit.velocities
+        fw, hw = self.win.select(False), self.win.select(True)
+        if self.continuation:
+            # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper
+            half = max(MIN_CONTINUATION, self.win.length // 2)
+            pre = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter // 2, length=half)
+            values, vel = pre.values, pre.velocities
+        res = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter)
+        held = pr.fit_velocities(res.values, hw, max_iter=10) if hw.size else res
+        fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
+        return Fitted(fitted_model, res.values, res, held, pr,
+                      pr.window_errors(res.values, hw, held.velocities) if hw.size else {},
+                      pr.window_errors(res.values, fw, res.velocities))
+
+    @staticmethod
+    def _new_keys(old: Model, new: Model) -> set[str]:
+        return set(new.params()) - set(old.params())
+
+    # ------------------------------------------------------------------ forward simulation and noise floor
+
+    def free_run(self, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """The fitted model simulated over the whole record from the first window's start (no re-starts).
+
+        Returns (sample indices, predicted outputs, states, aux). Phase drifts away from
+        the data: compare cycle features (frequency, amplitude, stick fraction), not points.
+        """
+        pr = fitted.problem
+        sim = pr.sim(fitted.values)
+        w0 = 0
+        s0 = self.rd.start_state(sim, self.m, int(self.win.starts[w0]))
+        fitted_w = list(fitted.fit.windows)
+        if w0 in fitted_w:
+            s0[list(self.rd.velocity_slots)] = fitted.fit.velocities[fitted_w.index(w0)]
+        i0 = int(self.win.starts[w0])
+        n = self.m.n - i0
+        ch = sim.advance(s0, float(pr.rt[i0]), pr.h, pr.n_sub, n, pr.rt, pr.rv)
+        return np.arange(i0, self.m.n), self.rd.predict(sim, ch.states), ch.states, ch.aux
+
+    def noise_floor(self, fitted: Fitted, seed: int = 12345) -> dict[str, float]:
+        """The error a perfect model shows on data like this: the fitted model scored on its own noisy output.
+
+        The fitted model's forward run becomes a synthetic recording with the measured
+        noise levels (same drive, temperature and other columns); the same windows
+        procedure then scores the same model on it, start velocities fitted as always.
+        """
+        idx, pred, states, aux = self.free_run(fitted)
+        rng = np.random.default_rng(seed)
+        ch = {k: np.asarray(v, dtype=float)[idx] for k, v in self.rec.channels.items()}
+        for k, x in pred.items():
+            ch[k] = x + rng.normal(0.0, self.m.sigma[k], x.size)
+        ch.update(self.rd.synthetic_extras(fitted.problem.sim(fitted.values), states, aux, ch, rng))
+        syn = Recording(self.rec.rig, self.m.t[idx], ch, self.rec.units, {}, {})
+        s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size)
+        s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
+        pr = s.problem(fitted.model)
+        allw = s.win.select(None)
+        vel = pr.fit_velocities(fitted.values, allw, max_iter=10)
+        ms = pr.window_errors(fitted.values, allw, vel.velocities)
+        return {k: float(math.sqrt(np.mean(v))) for k, v in ms.items()}
+
+
+def switched_off(model: Model, keys: set[str]) -> dict[str, float]:
+    """Start values for an effect added to a fitted model: its strength at neutral, so the fit
+    starts exactly where the smaller model ended and can only improve on it."""
+    from ..physics.effects import CATALOG
+
+    out = {}
+    for k in keys:
+        _, name, key = k.split(".", 2)
+        spec = CATALOG.get(name)
+        if spec is None:
+            continue
+        plist = spec.params_for(model.rig)
+        if plist and plist[0].key == key and model.params()[k].free:
+            out[k] = plist[0].neutral  # the first parameter of every catalog effect is its strength
+    return out

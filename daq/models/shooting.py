@@ -1,0 +1,298 @@
+"""Output-error fitting by multiple shooting: simulate the model over short windows of the data.
+
+Why this and not inverse dynamics: friction from twice-differentiated noisy
+positions is biased exactly at stick-slip transitions. Here the model is
+integrated from each window's start and compared with the *measured* signals,
+so transitions are judged by what the model predicts, not by a derivative.
+Windows are short (about one stick-slip cycle and a half) so phase drift cannot
+build up; each window's initial velocities are free (they are not measured),
+and the model's free parameters are shared by all windows. scipy's
+``least_squares`` gets the Jacobian's block sparsity, so one Jacobian costs
+(free parameters + velocities per window) evaluations, however many windows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .build import Builder
+from .data import Measured, RigData
+
+_DEBUG = False
+WINDOW_CYCLES = 1.5  # window length in stick-slip periods
+MIN_WINDOW_SAMPLES = 12
+
+
+@dataclass
+class Windows:
+    starts: np.ndarray  # sample index of each window's start
+    length: int  # samples per window, start included
+    held_out: np.ndarray  # bool per window: scored but not fitted
+
+    def select(self, held_out: bool | None) -> np.ndarray:
+        if held_out is None:
+            return np.arange(self.starts.size)
+        return np.flatnonzero(self.held_out == held_out)
+
+
+def dominant_period(m: Measured, fmin: float = 0.5) -> float:
+    """Period of the strongest oscillation of the primary signal (detrended) [s]."""
+    x = m.outputs[m.primary]
+    x = x - np.polynomial.polynomial.polyval(np.arange(x.size), np.polynomial.polynomial.polyfit(
+        np.arange(x.size), x, 3))
+    n = 1 << int(math.ceil(math.log2(max(x.size, 16))))
+    spec = np.abs(np.fft.rfft(x * np.hanning(x.size), n))
+    f = np.fft.rfftfreq(n, 1.0 / m.rate)
+    ok = f >= fmin
+    if not ok.any():
+        return 1.0
+    fpk = f[ok][np.argmax(spec[ok])]
+    return 1.0 / fpk if fpk > 0 else 1.0
+
+
+def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max_windows: int = 160,
+                 held_out_every: int = 3) -> Windows:
+    """Non-overlapping windows spread over the whole record, starting where the contact sticks if it does.
+
+    Why start in stick: there the block moves with the belt, so the unknown start
+    velocities are well estimated from the data even at 100 Hz sampling.
+    """
+    if window_s is None:
+        window_s = WINDOW_CYCLES * dominant_period(m)
+    L = max(MIN_WINDOW_SAMPLES, int(round(window_s * m.rate)) + 1)
+    L = min(L, m.n // 4)
+    edge = max(3, int(0.01 * m.rate))  # smoothing filters are less accurate at the very ends
+    stuck = np.abs(m.v_rel) < v_stick if m.v_rel is not None else np.zeros(m.n, bool)
+    good = stuck.mean() > 0.05
+    starts: list[int] = []
+    i = edge
+    while i + L + edge <= m.n:
+        if good:
+            j = i
+            limit = min(m.n - L - edge, i + L)
+            while j < limit and not (stuck[j] and stuck[max(j - 2, 0)]):
+                j += 1
+            if j >= limit:
+                i = limit
+                continue
+            i = j
+        starts.append(i)
+        i += L
+    if not starts:
+        starts = [edge]
+    s = np.asarray(starts, dtype=int)
+    if s.size > max_windows:  # evenly spaced subset: the cost stays bounded on long records
+        s = s[np.unique(np.linspace(0, s.size - 1, max_windows).round().astype(int))]
+    held = (np.arange(s.size) % held_out_every) == held_out_every - 1
+    if s.size < 3:
+        held[:] = False
+    return Windows(s, L, held)
+
+
+@dataclass
+class FitResult:
+    values: dict[str, float]  # all parameter values (fixed ones included)
+    free: list[str]
+    std: dict[str, float]
+    velocities: np.ndarray  # (n_windows_fitted, n_vel)
+    windows: np.ndarray  # window indices fitted
+    cost: float
+    nfev: int
+    success: bool
+    message: str = ""
+
+
+@dataclass
+class Shot:
+    """Simulated windows: predictions and the measured values they are compared with."""
+
+    windows: np.ndarray  # window indices
+    pred: dict[str, np.ndarray]  # (n_win, L)
+    meas: dict[str, np.ndarray]
+    states: np.ndarray  # (n_win, L, n_state)
+    aux: np.ndarray  # (n_win, L, N_AUX)
+    index: np.ndarray  # (n_win, L) sample indices
+
+
+@dataclass
+class Problem:
+    """A model, a recording and its windows: residuals, fits, predictions."""
+
+    builder: Builder
+    rd: RigData
+    m: Measured
+    win: Windows
+    drive: str = "command"  # or "measured"
+    _cache: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        cfg = self.builder.cfg
+        rate = self.m.rate
+        self.n_sub = max(1, int(math.ceil((1.0 / rate) / cfg.integrator.dt_s - 1e-9)))
+        self.h = 1.0 / rate / self.n_sub
+        v = self.m.drive_measured if self.drive == "measured" else self.m.drive_command
+        self.rt = np.ascontiguousarray(self.m.t - self.m.t[0])
+        self.rv = np.ascontiguousarray(v, dtype=float)
+        self.outputs = list(self.m.outputs)
+        self.idx = self.win.starts[:, None] + np.arange(self.win.length)[None, :]
+        self.meas = {k: x[self.idx] for k, x in self.m.outputs.items()}
+        self.n_vel = len(self.rd.velocity_slots)
+        self._starts_cache: dict[str, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ simulation
+
+    def sim(self, values: dict[str, float]):
+        key = tuple(sorted(values.items()))
+        if self._cache.get("key") != key:
+            self._cache = {"key": key, "sim": self.builder.sim(values)}
+        return self._cache["sim"]
+
+    def start_states(self, sim, windows: np.ndarray) -> np.ndarray:
+        return np.array([self.rd.start_state(sim, self.m, int(self.win.starts[w])) for w in windows])
+
+    def default_velocities(self, windows: np.ndarray) -> np.ndarray:
+        sim = self.sim(self.builder.base_values)
+        s0 = self.start_states(sim, windows)
+        return s0[:, list(self.rd.velocity_slots)].copy()
+
+    def shoot(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray | None = None,
+              length: int | None = None) -> Shot:
+        sim = self.sim(values)
+        s0 = self.start_states(sim, windows)
+        if velocities is not None:
+            s0[:, list(self.rd.velocity_slots)] = velocities
+        L = length or self.win.length
+        states = np.empty((windows.size, L, s0.shape[1]))
+        aux = None
+        for j, w in enumerate(windows):
+            t0 = float(self.rt[self.win.starts[w]])
+            ch = sim.advance(s0[j], t0, self.h, self.n_sub, L, self.rt, self.rv)
+            states[j] = ch.states
+            if aux is None:
+                aux = np.empty((windows.size, L, ch.aux.shape[1]))
+            aux[j] = ch.aux
+        pred = self.rd.predict(sim, states)
+        meas = {k: v[windows, :L] for k, v in self.meas.items()}
+        return Shot(windows, pred, meas, states, aux, self.idx[windows, :L])
+
+    def residuals(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray | None,
+                  length: int | None = None) -> np.ndarray:
+        """(pred - meas)/sigma for every output, window and sample after the start, flattened per window."""
+        shot = self.shoot(values, windows, velocities, length)
+        parts = [(shot.pred[k][:, 1:] - shot.meas[k][:, 1:]) / self.m.sigma[k] for k in self.outputs]
+        r = np.stack(parts, axis=1).reshape(windows.size, -1)  # (n_win, n_out*(L-1))
+        return np.nan_to_num(r.ravel(), nan=1e6, posinf=1e6, neginf=-1e6)
+
+    # ------------------------------------------------------------------ fitting
+
+    def fit(self, values: dict[str, float], free: list[str], bounds: dict[str, tuple[float, float]],
+            windows: np.ndarray, velocities: np.ndarray | None = None, max_iter: int = 25,
+            length: int | None = None) -> FitResult:
+        """Least squares over the free parameters and every window's start velocities.
+
+        Levenberg-Marquardt on the block structure of multiple shooting: the start
+        velocities of one window touch only that window's residuals, so the normal
+        equations are solved through the Schur complement over the global parameters
+        (cost linear in the number of windows). Finite-difference Jacobian: one
+        evaluation per free parameter plus one per velocity slot, all windows at once.
+        """
+        values = dict(values)
+        k, nw, nv = len(free), windows.size, self.n_vel
+        lo = np.array([bounds[n][0] for n in free], dtype=float)
+        hi = np.array([bounds[n][1] for n in free], dtype=float)
+        theta = np.clip(np.array([values[n] for n in free], dtype=float), lo, hi)
+        V = (self.default_velocities(windows) if velocities is None else np.array(velocities, dtype=float))
+        nfev = 0
+
+        def resid(th: np.ndarray, vel: np.ndarray) -> np.ndarray:
+            nonlocal nfev
+            nfev += 1
+            vals = dict(values)
+            vals.update({n: float(th[i]) for i, n in enumerate(free)})
+            return self.residuals(vals, windows, vel, length).reshape(nw, -1)
+
+        R = resid(theta, V)
+        cost = 0.5 * float(np.sum(R * R))
+        lam = 1e-2
+        vscale = np.maximum(np.abs(V).mean(axis=0), 1e-3)
+        success, message = False, "iteration limit"
+        S0 = None
+        for _ in range(max_iter):
+            Jg = np.empty(R.shape + (k,))
+            for i in range(k):
+                hstep = 1e-4 * max(abs(theta[i]), 1e-3 * (hi[i] - lo[i]), 1e-8)
+                if theta[i] + hstep > hi[i]:
+                    hstep = -hstep
+                th = theta.copy()
+                th[i] += hstep
+                Jg[..., i] = (resid(th, V) - R) / hstep
+            Jv = np.empty(R.shape + (nv,))
+            for j in range(nv):
+                dv = 1e-4 * vscale[j]
+                Vp = V.copy()
+                Vp[:, j] += dv
+                Jv[..., j] = (resid(theta, Vp) - R) / dv
+            A = np.einsum("wri,wrj->ij", Jg, Jg)
+            B = np.einsum("wri,wrj->wij", Jg, Jv)
+            C = np.einsum("wri,wrj->wij", Jv, Jv)
+            ga = np.einsum("wri,wr->i", Jg, R)
+            gc = np.einsum("wrj,wr->wj", Jv, R)
+            improved = False
+            for _try in range(14):
+                Ad = A + lam * np.diag(np.diag(A) + 1e-12)
+                Cd = C + lam * (np.einsum("wii->wi", C)[:, :, None] * np.eye(nv)[None] + 1e-12 * np.eye(nv)[None])
+                Ci = np.linalg.inv(Cd)
+                BCi = np.einsum("wij,wjk->wik", B, Ci)
+                S = Ad - np.einsum("wij,wkj->ik", BCi, B) if k else np.zeros((0, 0))
+                rhs = -ga + np.einsum("wij,wj->i", BCi, gc) if k else np.zeros(0)
+                dth = np.linalg.solve(S, rhs) if k else np.zeros(0)
+                dV = -np.einsum("wij,wj->wi", Ci, gc + np.einsum("wij,i->wj", B, dth))
+                th_new = np.clip(theta + dth, lo, hi)
+                V_new = V + dV
+                R_new = resid(th_new, V_new)
+                cost_new = 0.5 * float(np.sum(R_new * R_new))
+                if np.isfinite(cost_new) and cost_new < cost:
+                    improved = True
+                    rel = (cost - cost_new) / max(cost, 1e-300)
+                    theta, V, R, cost = th_new, V_new, R_new, cost_new
+                    lam = max(lam / 5.0, 1e-7)
+                    if _DEBUG: print(f"    it cost {cost:.4g} lam {lam:.2g} try {_try}")
+                    break
+                lam *= 4.0
+            if not improved:
+                success, message = True, "no further decrease"
+                break
+            if rel < 1e-4:
+                success, message = True, "converged (relative cost decrease < 1e-4)"
+                break
+        vals = dict(values)
+        vals.update({n: float(theta[i]) for i, n in enumerate(free)})
+        std = self._stds(Jg if k else None, Jv, cost, R.size, k, nv, nw, free)
+        return FitResult(vals, list(free), std, V.copy(), windows, cost, nfev, success, message)
+
+    @staticmethod
+    def _stds(Jg, Jv, cost: float, m: int, k: int, nv: int, nw: int, free: list[str]) -> dict[str, float]:
+        """1-sigma of the free parameters: inverse Schur complement of J^T J over the nuisance velocities."""
+        if k == 0 or Jg is None:
+            return {}
+        A = np.einsum("wri,wrj->ij", Jg, Jg)
+        B = np.einsum("wri,wrj->wij", Jg, Jv)
+        C = np.einsum("wri,wrj->wij", Jv, Jv) + 1e-12 * np.eye(nv)[None]
+        S = A - np.einsum("wij,wjk,wlk->il", B, np.linalg.inv(C), B)
+        s2 = 2.0 * cost / max(m - k - nw * nv, 1)
+        cov = np.linalg.pinv(S) * s2
+        return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
+
+    def fit_velocities(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10) -> FitResult:
+        """Only the start velocities (the model fixed): how well can this model follow these windows."""
+        return self.fit(values, [], {}, windows, max_iter=max_iter)
+
+    # ------------------------------------------------------------------ scores
+
+    def window_errors(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray) -> dict[str, np.ndarray]:
+        """Mean-square error per window and output (in the output's unit squared)."""
+        shot = self.shoot(values, windows, velocities)
+        return {k: np.mean((shot.pred[k][:, 1:] - shot.meas[k][:, 1:]) ** 2, axis=1) for k in self.outputs}
