@@ -236,3 +236,26 @@ def test_curve_role_comes_from_user_id(curve_server, keys):
     assert curve_server.role_of(op_pub) == "operator"
     assert curve_server.role_of(ob_pub) == "observer"
     assert curve_server.role_of(None) is None and curve_server.role_of("x" * 40) is None
+
+
+def test_error_codes_tell_bad_input_from_refusals(calls):
+    """``daq ctl`` exits 2 for the client's own mistakes (malformed, bad file) and 1 for refusals."""
+    from daq.errors import InputError
+
+    def bad_ramp(args: dict) -> dict:
+        raise InputError(args["file"], "segment[0].kind", "unknown kind 'warp'")
+
+    handlers = {**calls.handlers(), "ramp": bad_ramp}
+    with ControlServer(handlers, ControlCfg(endpoint=ANY_PORT)) as srv, ControlClient(srv.endpoint, timeout_s=5.0) as c:
+        r = c.request("ramp", file="r.toml")
+        assert not r.ok and r.code == "input" and r.error == "r.toml: segment[0].kind: unknown kind 'warp'"
+        r = c.request("ramp", file=7)
+        assert not r.ok and r.code == "malformed" and "args.file" in r.error
+        r = c.request("record_start", path="x.h5")
+        assert r.ok and r.code is None
+        assert srv.role_of(None) == "operator"  # no CURVE: only local clients can connect, all operate
+    with ControlServer({"status": lambda a: 1 / 0}, ControlCfg(endpoint=ANY_PORT)) as srv:
+        with ControlClient(srv.endpoint, timeout_s=5.0) as c:
+            r = c.request("status")
+            assert not r.ok and r.code == "failed" and "ZeroDivisionError" in r.error
+            assert c.request("stop").code == "failed"  # no handler: an error, not a crash
