@@ -217,8 +217,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.set_defaults(func=cmd_bench)
 
     from .cli_daemon import register as register_daemon
+    from .cli_models import register as register_models
 
     register_daemon(sub)
+    register_models(sub)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware")
     demo.add_argument("--out", default="out/demo", help="report folder")

@@ -102,7 +102,6 @@ class Session:
         self.m: Measured = self.rd.prepare(rec, source)
         self.win: Windows = make_windows(self.m, cfg.contact.v_stick_m_per_s, max_windows=max_windows)
         self.progress = progress or (lambda msg: None)
-        self.continuation = True
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
@@ -125,19 +124,26 @@ class Session:
         free = model.free_names()
         bounds = {n: (params[n].lo if params[n].lo is not None else -np.inf,
                       params[n].hi if params[n].hi is not None else np.inf) for n in free}
-        values = dict(pr.builder.base_values)
-        vel = None
+        # Starts: the model file's values (what `model add` + refit does), and, when refining a fitted
+        # model, its fitted values with the new effect switched off. Neither alone is safe: the warm
+        # start can sit in the smaller model's compromise (a local minimum, e.g. bearing friction hidden
+        # behind extra damping), the cold one can be far away. Both run on half windows; the better goes on.
+        starts: list[tuple[dict[str, float], np.ndarray | None]] = [(dict(pr.builder.base_values), None)]
         if warm is not None:
             new = self._new_keys(warm.model, model)
+            values = dict(pr.builder.base_values)
             values.update({k: v for k, v in warm.values.items() if k in values and k not in new})
             values.update(switched_off(model, new))
-            vel = warm.fit.velocities
+            starts.append((values, warm.fit.velocities))
         fw, hw = self.win.select(False), self.win.select(True)
-        if self.continuation:
+        half = max(MIN_CONTINUATION, self.win.length // 2)
+        best = None
+        for values, vel in starts:
             # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper
-            half = max(MIN_CONTINUATION, self.win.length // 2)
             pre = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter // 2, length=half)
-            values, vel = pre.values, pre.velocities
+            if best is None or pre.cost < best.cost:
+                best = pre
+        values, vel = best.values, best.velocities
         res = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter)
         held = pr.fit_velocities(res.values, hw, max_iter=10) if hw.size else res
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)

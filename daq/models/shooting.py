@@ -265,7 +265,7 @@ class Problem:
             if not improved:
                 success, message = True, "no further decrease"
                 break
-            if rel < 1e-4:
+            if rel < 1e-6 or (rel < 1e-4 and _try == 0):  # small decrease from a full (undamped) step
                 success, message = True, "converged (relative cost decrease < 1e-4)"
                 break
         vals = dict(values)

@@ -20,11 +20,11 @@ taken from the rig config, so a model file holds only what the model decides.
 from __future__ import annotations
 
 import hashlib
+import json
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..config import RigConfig, load_rig
@@ -214,38 +214,45 @@ def load_model(path: str | Path) -> Model:
     return model
 
 
-def _param_toml(p: Param) -> Any:
+def _scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v))
+    return json.dumps(str(v))  # a TOML basic string accepts JSON's escapes
+
+
+def _param_toml(p: Param) -> str:
     if not p.free and p.lo is None and p.hi is None and p.std is None:
-        return p.value
-    d: dict[str, Any] = {"value": p.value}
+        return _scalar(p.value)
+    parts = [f"value = {_scalar(p.value)}"]
     if p.free:
-        d["free"] = True
-    if p.lo is not None:
-        d["lo"] = p.lo
-    if p.hi is not None:
-        d["hi"] = p.hi
-    if p.std is not None:
-        d["std"] = p.std
-    return d
+        parts.append("free = true")
+    for k in ("lo", "hi", "std"):
+        v = getattr(p, k)
+        if v is not None:
+            parts.append(f"{k} = {_scalar(v)}")
+    return "{ " + ", ".join(parts) + " }"
 
 
 def dumps(model: Model) -> str:
-    d: dict[str, Any] = {"rig": model.rig, "law": model.law}
+    """TOML with one line per parameter (inline tables), the way a person would write it."""
+    lines = [f"rig = {_scalar(model.rig)}", f"law = {_scalar(model.law)}"]
     if model.title:
-        d["title"] = model.title
+        lines.append(f"title = {_scalar(model.title)}")
     if model.rig_config:
-        d["rig_config"] = model.rig_config
+        lines.append(f"rig_config = {_scalar(model.rig_config)}")
     for sec in SECTIONS:
         if getattr(model, sec):
-            d[sec] = {k: _param_toml(v) for k, v in getattr(model, sec).items()}
-    d["effects"] = {}
+            lines += ["", f"[{sec}]"] + [f"{k} = {_param_toml(v)}" for k, v in getattr(model, sec).items()]
     for name, eff in model.effects.items():
-        body: dict[str, Any] = {"path": eff.path} if eff.path else {}
-        body.update({k: _param_toml(v) for k, v in eff.params.items()})
-        d["effects"][name] = body
+        lines += ["", f"[effects.{name}]"]
+        if eff.path:
+            lines.append(f"path = {_scalar(eff.path)}")
+        lines += [f"{k} = {_param_toml(v)}" for k, v in eff.params.items()]
     if model.fit is not None:
-        d["fit"] = model.fit.model_dump(exclude_none=True)
-    return tomli_w.dumps(d)
+        lines += ["", "[fit]"] + [f"{k} = {_scalar(v)}" for k, v in model.fit.model_dump(exclude_none=True).items()]
+    return "\n".join(lines) + "\n"
 
 
 def save_model(model: Model, path: str | Path) -> None:
@@ -273,7 +280,7 @@ START: dict[str, dict[str, float]] = {
     "accel-sign": {"amp": 0.05},
     "stick-time": {"gain": 0.2, "tau": 0.5},
     "force-rate": {"gain": 0.1, "q0": 1.0},
-    "bearing-friction": {"torque": 0.001, "mu1": 0.05},
+    "bearing-friction": {"torque": 0.001, "mu1": 0.02},
     "temperature": {"coef": 0.0},
     "velocity-strengthening": {"D": 0.1},
 }

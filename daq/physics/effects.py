@@ -228,9 +228,17 @@ ENVIRONMENT_SLOTS: dict[str, E] = {
 }
 
 
+# sgn(phi_dot) of the bearing torque, regularised as tanh(w / eps) [rad/s]. Why not a hard
+# sign: under a fixed-step integrator a hard sign at the pendulum's turning points makes the
+# trajectory depend erratically on the parameters, which no fit can descend; 2e-3 rad/s is the
+# contact law's own regularisation (0.2 mm/s) at the drum radius.
+BEARING_SGN_EPS = 2e-3
+
+
 def neutral_vector() -> np.ndarray:
     """The effect vector with every effect off."""
     e = np.zeros(N_E)
+    e[E.BF_EPS] = BEARING_SGN_EPS
     for spec in CATALOG.values():
         for plist in spec.params.values():
             for ps in plist:

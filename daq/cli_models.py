@@ -1,0 +1,270 @@
+"""``daq model``, ``daq fit``, ``daq compare``, ``daq diagnose``, ``daq history``: models against measurements."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import sys
+import time
+from pathlib import Path
+
+from .errors import InputError
+
+HISTORY = "daq-history.jsonl"
+
+
+def _say(msg: str) -> None:
+    print(f"  {msg}", file=sys.stderr, flush=True)
+
+
+def _json_out(obj: dict) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, default=_default) + "\n")
+
+
+def _default(o):
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)
+
+
+def _out_path(p: str, suffix: str, flag: str = "-o") -> Path:
+    out = Path(p)
+    if out.suffix.lower() != suffix:
+        raise InputError(str(out), flag, f"must end in {suffix}")
+    return out
+
+
+# ----------------------------------------------------------------------------- model files
+
+
+def cmd_model_init(args: argparse.Namespace) -> int:
+    from .models.spec import save_model, seed_model
+
+    out = _out_path(args.output, ".toml")
+    m = seed_model(args.rig)
+    save_model(m, out)
+    print(f"wrote {out}: {m.title}; effects: {', '.join(m.effects)}; free: {', '.join(m.free_names())}",
+          file=sys.stderr)
+    return 0
+
+
+def cmd_model_add(args: argparse.Namespace) -> int:
+    from .models.spec import add_effect, load_model, save_model
+
+    m = load_model(args.model)
+    path = args.effect if args.effect.endswith(".py") else None
+    name = Path(path).stem if path else args.effect
+    if path and not Path(path).is_file():
+        raise InputError(path, "path", "user effect file not found")
+    new = add_effect(m, name, f"model add {args.effect}", path=str(Path(path).resolve()) if path else None)
+    out = Path(args.output or args.model)
+    save_model(new, out)
+    added = [k for k in new.free_names() if k not in m.params()]
+    print(f"wrote {out}: + {name} (free: {', '.join(added) or 'none'})", file=sys.stderr)
+    return 0
+
+
+def cmd_model_remove(args: argparse.Namespace) -> int:
+    from .models.spec import load_model, remove_effect, save_model
+
+    m = load_model(args.model)
+    new = remove_effect(m, args.effect)
+    out = Path(args.output or args.model)
+    save_model(new, out)
+    print(f"wrote {out}: - {args.effect}", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- analyses
+
+
+def _session(args: argparse.Namespace):
+    from .models.session import Session
+    from .models.spec import load_model
+
+    model = load_model(args.model)
+    print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
+    s = Session.open(args.data, model, args.rig, progress=_say)
+    _say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
+         f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
+    return model, s
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from .models.spec import FitInfo, save_model
+
+    out = _out_path(args.output, ".toml")
+    model, s = _session(args)
+    t0 = time.perf_counter()
+    _say(f"fitting {len(model.free_names())} free parameters")
+    f = s.fit(model)
+    err = f.rms(s.primary, "all")
+    fitted = f.model.model_copy(update={"fit": FitInfo(data=str(args.data), error=err, error_unit=s.m.units[s.primary],
+                                                      cost=f.fit.cost)})
+    save_model(fitted, out)
+    res = {"model": str(out), "error": err, "error_unit": s.m.units[s.primary], "error_held_out": f.rms(s.primary),
+           "parameters": {k: {"value": f.values[k], "std": f.fit.std.get(k)} for k in model.free_names()},
+           "seconds": time.perf_counter() - t0, "converged": f.fit.success, "message": f.fit.message}
+    if args.json:
+        _json_out(res)
+    else:
+        for k, d in res["parameters"].items():
+            print(f"  {k:42s} {d['value']:.6g} +- {d['std'] if d['std'] is not None else float('nan'):.2g}")
+        print(f"error {err:.4g} {res['error_unit']} (held-out {res['error_held_out']:.4g}); wrote {out}")
+    return 0
+
+
+def _append_history(path: Path, res: dict) -> None:
+    entry = {k: res[k] for k in ("data", "model", "model_digest", "error", "error_unit", "noise_floor",
+                                 "error_held_out")}
+    entry["time"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    entry["data"] = str(Path(res["data"]).resolve())
+    with open(path, "a") as fh:
+        fh.write(json.dumps(entry) + "\n")
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .models.compare import compare
+    from .models.figures import compare_figure, spectrogram_figure
+    from .models.spec import save_model
+
+    model, s = _session(args)
+    _say(f"fitting {len(model.free_names())} free parameters")
+    f = s.fit(model)
+    _say("noise floor: the fitted model scored on its own simulated output with the measured noise")
+    floor = s.noise_floor(f)
+    _say("forward simulation and breakdowns")
+    res = compare(s, f, floor)
+    plot = res.pop("_plot")
+    if args.report:
+        rep = Path(args.report)
+        rep.mkdir(parents=True, exist_ok=True)
+        compare_figure(s, f, {**res, "_plot": plot}, rep / "compare.png")
+        spectrogram_figure(s, {**res, "_plot": plot}, rep / "spectrogram.png")
+        (rep / "compare.json").write_text(json.dumps(res, indent=2, default=_default))
+        save_model(f.model, rep / "fitted.toml")
+        res["report"] = str(rep)
+    if not args.no_history:
+        _append_history(Path(args.history), res)
+    if args.json:
+        _json_out(res)
+    else:
+        u = res["error_unit"]
+        print(f"error {res['error']:.4g} {u} (noise floor {res['noise_floor']:.4g}, held-out {res['error_held_out']:.4g})"
+              f"  model: {res['model']}")
+        print("  by regime: " + "; ".join(f"{k} {v['error']:.3g}" for k, v in res["by_regime"].items()))
+        print("  by signal: " + "; ".join(f"{k} {v['error']:.3g} {v['unit']} (floor {v['noise_floor']:.3g})"
+                                          for k, v in res["by_signal"].items()))
+        print("  invariants (measured / model): " + "; ".join(
+            f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
+        print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from .models.diagnose import diagnose
+    from .models.figures import diagnose_figure
+
+    model, s = _session(args)
+    t0 = time.perf_counter()
+    d = diagnose(s, model, progress=_say, workers=args.workers)
+    res = d.as_json(s)
+    res["seconds"] = time.perf_counter() - t0
+    if args.report:
+        rep = Path(args.report)
+        rep.mkdir(parents=True, exist_ok=True)
+        diagnose_figure(s, d, rep / "diagnose.png")
+        (rep / "diagnose.json").write_text(json.dumps(res, indent=2, default=_default))
+        res["report"] = str(rep)
+    if args.json:
+        _json_out(res)
+    else:
+        print(d.summary)
+        print(f"  {'effect':24s} {'reduction':>9s} {'t':>6s}  params")
+        for c in res["candidates"]:
+            print(f"  {c['effect']:24s} {c['reduction']:9.2f} {c['t_stat']:6.1f}  "
+                  + ", ".join(f"{k.rsplit('.', 1)[-1]}={v:.4g}" for k, v in c["values"].items()))
+        if not d.found and d.correlations:
+            print("  residual correlates with: " + ", ".join(
+                f"{c['quantity']} ({c['spearman_rho']:+.2f})" for c in d.correlations[:5]))
+    return 0
+
+
+def cmd_history(args: argparse.Namespace) -> int:
+    from .models.figures import history_figure
+
+    path = Path(args.history)
+    if not path.is_file():
+        raise InputError(str(path), "(file)", "no history yet (run daq compare first)")
+    entries = []
+    for n, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            entries.append(json.loads(line))
+        except json.JSONDecodeError as exc:
+            raise InputError(str(path), f"line {n}", f"not JSON: {exc.msg}") from None
+    if args.data:
+        want = str(Path(args.data).resolve())
+        entries = [e for e in entries if e.get("data") == want]
+    out = _out_path(args.output, ".png")
+    history_figure(entries, out)
+    for e in entries:
+        print(f"{e['time']}  {Path(e['data']).name:24s} {e['error']:.4g} {e['error_unit']} "
+              f"(floor {e['noise_floor']:.3g})  {e['model']}")
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    model = sub.add_parser("model", help="model files: init, add, remove")
+    msub = model.add_subparsers(dest="model_command", required=True)
+    p = msub.add_parser("init", help="write the seed model of a rig")
+    p.add_argument("rig")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_model_init)
+    for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (or a user effect file.py)"),
+                          ("remove", cmd_model_remove, "remove an effect")):
+        p = msub.add_parser(name, help=hlp)
+        p.add_argument("model")
+        p.add_argument("effect")
+        p.add_argument("-o", "--output", help="write here instead of changing MODEL in place")
+        p.set_defaults(func=fn)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS")
+        p.add_argument("--model", required=True, help="model TOML")
+        p.add_argument("--rig", help="rig of a CSV/TDMS file (default: the model's)")
+        p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("fit", help="fit a model's free parameters (multiple shooting)")
+    common(p)
+    p.add_argument("-o", "--output", required=True, help="FITTED.toml")
+    p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("compare", help="model vs measurement: error, noise floor, where it fails")
+    common(p)
+    p.add_argument("--report", help="folder for figures and JSON")
+    p.add_argument("--history", default=HISTORY, help=f"history file to append to (default ./{HISTORY})")
+    p.add_argument("--no-history", action="store_true")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("diagnose", help="which catalog effect is the model missing?")
+    common(p)
+    p.add_argument("--report", help="folder for figures and JSON")
+    p.add_argument("--workers", type=int, help="processes for the candidate fits (default: all cores)")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("history", help="plot the error across model revisions")
+    p.add_argument("--history", default=HISTORY)
+    p.add_argument("--data", help="only this data file")
+    p.add_argument("-o", "--output", default="history.png")
+    p.set_defaults(func=cmd_history)

@@ -1,0 +1,153 @@
+"""Model files, multiple-shooting fits, the noise floor and user effects (issue 5)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from daq.config import load_rig
+from daq.errors import InputError
+from daq.models.session import Session
+from daq.models.spec import add_effect, dumps, load_model, parse_model, remove_effect, save_model, seed_model
+from daq.sim.effectset import parse_effect
+from daq.sim.run import simulate
+
+from helpers import expect_error, write
+
+
+# ----------------------------------------------------------------------------- model files
+
+
+def test_seed_model_of_brake_is_paper_001_with_its_three_effects(tmp_path):
+    m = seed_model("brake-2dof")
+    assert set(m.effects) == {"normal-load", "geometric", "viscous-damping"}
+    assert m.friction["mu0"].value == 0.5 and m.friction["mu0"].free
+    assert m.effects["normal-load"].params["weight"].value == 1.0
+    assert not m.effects["normal-load"].params["weight"].free  # structural, not a fit knob
+    save_model(m, tmp_path / "m.toml")
+    back = load_model(tmp_path / "m.toml")
+    assert back.params() == m.params() and back.effects.keys() == m.effects.keys()
+    assert "mu0 = { value = 0.5, free = true" in (tmp_path / "m.toml").read_text()
+
+
+def test_add_and_remove_effects_round_trip(tmp_path):
+    m = seed_model("drum-pendulum")
+    m2 = add_effect(m, "bearing-friction")
+    assert m2.effects["bearing-friction"].params["mu1"].free
+    assert "bearing-friction" not in m.effects  # the original is not changed
+    m3 = remove_effect(m2, "bearing-friction")
+    assert dumps(m3) == dumps(m)
+    with pytest.raises(InputError) as e:
+        add_effect(m2, "bearing-friction")
+    assert "already" in e.value.message
+    with pytest.raises(InputError) as e:
+        add_effect(m, "geometric")  # brake-only
+    assert "does not apply to drum-pendulum" in e.value.message
+    with pytest.raises(InputError) as e:
+        remove_effect(m, "stick-time")
+    assert e.value.field == "stick-time"
+
+
+@pytest.mark.parametrize("text, field, fragment", [
+    ('law = "brake-eq7"\n', "rig", "required"),
+    ('rig = "brake-2dof"\nlaw = "drum-eq3"\n', "law", "has law 'brake-eq7'"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\ncolour = 1\n', "colour", "unknown key"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[friction]\nmu0 = { value = 0.5, lo = 1.0, hi = 0.1 }\n',
+     "friction.mu0", "must be below"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[friction]\nmu0 = { value = 3.0, lo = 0.0, hi = 1.0 }\n',
+     "friction.mu0", "outside"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[friction]\nmu0 = "half"\n', "friction.mu0", "expected a number"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[friction]\nkappa = 1.0\n', "friction.kappa", "not a numeric"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[effects.wear]\nk = 1.0\n', "effects.wear", "unknown effect"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[effects.stick-time]\nspeed = 1.0\n', "effects.stick-time.speed",
+     "unknown parameter"),
+    ('rig = "brake-2dof"\nlaw = "brake-eq7"\n[friction\n', "(syntax)", ""),
+])
+def test_bad_model_files_name_the_file_and_field(tmp_path, text, field, fragment):
+    path = write(tmp_path, "bad.toml", text)
+    with pytest.raises(InputError) as e:
+        load_model(path)
+    expect_error(e.value, str(path), field, fragment)
+
+
+# ----------------------------------------------------------------------------- fitting
+
+
+@pytest.fixture(scope="module")
+def brake_clean():
+    cfg = load_rig("brake-2dof")
+    return cfg, simulate(cfg, rate=1000.0, seed=2, duration=12.0, noise=False)
+
+
+def test_true_model_reproduces_noise_free_data_to_the_sensor_resolution(brake_clean):
+    """Windows simulated from states estimated from the data follow it to ~ the 1 um quantisation."""
+    cfg, rec = brake_clean
+    s = Session(rec, "sim", cfg, max_windows=30)
+    model = seed_model("brake-2dof")
+    pr = s.problem(model)
+    w = s.win.select(None)
+    vel = pr.fit_velocities(pr.builder.base_values, w, max_iter=6)
+    err = np.sqrt(np.mean(pr.window_errors(pr.builder.base_values, w, vel.velocities)["x1"]))
+    assert err < 1.5e-6  # lsb 1 um; the x1 amplitude is ~5 mm
+
+
+def test_fit_recovers_law_parameters_started_off_target(brake_clean):
+    cfg, rec = brake_clean
+    s = Session(rec, "sim", cfg, max_windows=30)
+    m = seed_model("brake-2dof")
+    m.friction["mu0"].value = 0.42
+    m.friction["beta"].value = 0.55
+    f = s.fit(m)
+    assert f.values["friction.mu0"] == pytest.approx(0.5, abs=2e-3)
+    assert f.values["friction.beta"] == pytest.approx(0.7, abs=1e-2)
+    assert f.fit.std["friction.mu0"] > 0
+    assert f.rms("x1") < 2e-6
+
+
+def test_noise_floor_matches_the_sensor_noise(brake_cfg):
+    """On noisy data from the true model, the error is at the floor and the floor is ~ the noise sigma."""
+    rec = simulate(brake_cfg, rate=1000.0, seed=4, duration=12.0)
+    s = Session(rec, "sim", brake_cfg, max_windows=30)
+    f = s.fit(seed_model("brake-2dof"))
+    floor = s.noise_floor(f)["x1"]
+    sigma = (5e-6**2 + 1e-6**2 / 12) ** 0.5
+    assert 0.9 * sigma < floor < 1.3 * sigma
+    # 30 windows of 0.2 s: the error of one realisation scatters by ~10 % around the floor
+    assert abs(f.rms("x1", "all") - floor) < 0.2 * floor
+
+
+def test_user_effect_from_a_file_explains_a_hidden_temperature_effect(tmp_path, brake_cfg):
+    """A user's own effect file (not in the package) is fitted like a catalog effect."""
+    path = write(tmp_path, "my_temp.py", (
+        "from daq.models.user_effects import UserParam\n"
+        "PARAMS = {'c': UserParam(start=0.0, lo=-0.1, hi=0.1, unit='1/K')}\n"
+        "def mu_factor(v_rel, t, temp, travel, stick_clock, p0, p1, p2, p3):\n"
+        "    return 1.0 + p0 * (temp - 22.0)\n"))
+    rec = simulate(brake_cfg, effects=[parse_effect("temperature:coef=-0.02")], rate=1000.0, seed=3, duration=10.0)
+    s = Session(rec, "sim", brake_cfg, max_windows=24)
+    m = seed_model("brake-2dof")
+    base = s.fit(m)
+    m2 = add_effect(m, "my_temp", path=str(path))
+    save_model(m2, tmp_path / "m2.toml")
+    m2 = load_model(tmp_path / "m2.toml")
+    f = s.fit(m2)
+    assert f.values["effects.my_temp.c"] == pytest.approx(-0.02, abs=1e-3)
+    assert f.rms("x1") < 0.2 * base.rms("x1")
+
+
+def test_bad_user_effect_files_are_one_line_errors(tmp_path):
+    m = seed_model("brake-2dof")
+    p = write(tmp_path, "bad1.py", "PARAMS = {}\n")
+    with pytest.raises(InputError) as e:
+        add_effect(m, "bad1", path=str(p))
+    expect_error(e.value, str(p), "mu_factor", "missing")
+    p = write(tmp_path, "bad2.py", (
+        "from daq.models.user_effects import UserParam\nPARAMS = {'a': UserParam()}\n"
+        "def mu_factor(v_rel, t, temp, travel, stick_clock, p0, p1, p2, p3):\n    return {'x': 1}[v_rel]\n"))
+    with pytest.raises(InputError) as e:
+        add_effect(m, "bad2", path=str(p))
+    expect_error(e.value, str(p), "mu_factor", "numba")
+    p = write(tmp_path, "bad3.py", "import nonexistent_module_xyz\n")
+    with pytest.raises(InputError) as e:
+        add_effect(m, "bad3", path=str(p))
+    expect_error(e.value, str(p), "(import)", "nonexistent_module_xyz")
