@@ -196,7 +196,8 @@ def format_status(st: dict[str, Any]) -> str:
              f"regulator link {belt.get('regulator')}"]
     lines.append("streams")
     for name, s in sorted(st.get("streams", {}).items()):
-        lines.append(f"  {name:16s} {s['rate_hz']:9.1f} samples/s  {s['samples']:>10d} samples  {s['blocks']:>7d} blocks")
+        lines.append(f"  {name:16s} {s['rate_hz']:9.1f} samples/s  {s['samples']:>10d} samples  "
+                     f"{s['blocks']:>7d} blocks")
     for name, s in sorted(st.get("sources", {}).items()):
         lines.append(f"  source {name:16s} {s['state']:12s} lost frames {s['lost_frames']}  "
                      f"checksum errors {s['checksum_errors']}  reconnects {s['reconnects']}")
@@ -208,16 +209,18 @@ def format_status(st: dict[str, Any]) -> str:
                      f"{est.get('blocks_per_s', 0.0):.1f} blocks/s in  lost {est.get('lost_blocks', 0)}  "
                      f"gaps {est.get('gaps', 0)}")
         if last:
-            lines.append(f"          F_est {_fmt(last.get('F_est'), '.3f')} N  mu_est {_fmt(last.get('mu_est'), '.3f')}  "
-                         f"v_rel {_fmt(last.get('v_rel'))} m/s  {'slip' if last.get('slip') else 'stick'}")
+            lines.append(f"          F_est {_fmt(last.get('F_est'), '.3f')} N  "
+                         f"mu_est {_fmt(last.get('mu_est'), '.3f')}  v_rel {_fmt(last.get('v_rel'))} m/s  "
+                         f"{'slip' if last.get('slip') else 'stick'}")
         if fit:
             lines.append("          fit " + "  ".join(f"{k} {v:.4g}" for k, v in fit.items() if k != "t"))
     rec = st.get("recording")
     lines.append(f"recording {rec['path']} (pid {rec['pid']})  {rec['progress']}" if rec else "recording off")
     ramp = st.get("ramp")
     if ramp:
-        lines.append(f"ramp      {ramp['state']} {100 * ramp['fraction']:.0f} %  t {ramp['t']:.1f}/{ramp['duration']:.1f} s  "
-                     f"commanded {_fmt(ramp['commanded'])} m/s  {ramp['reason']}")
+        lines.append(f"ramp      {ramp['state']} {100 * ramp['fraction']:.0f} %  "
+                     f"t {ramp['t']:.1f}/{ramp['duration']:.1f} s  commanded {_fmt(ramp['commanded'])} m/s  "
+                     f"{ramp['reason']}")
     return "\n".join(lines)
 
 
