@@ -121,6 +121,7 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "serial": ("daq.bench_serial", "bench_serial", "format_serial"),
     "estimator": ("daq.bench_estimator", "bench_estimator", "format_estimator"),
     "bus": ("daq.bench_bus", "bench_bus", "format_bus"),
+    "diagnose": ("daq.bench_diagnose", "bench_diagnose", "format_diagnose"),
 }
 
 

@@ -162,13 +162,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Until the daemon exists: the seed brake-2dof run with its figure (issue 2's main job)."""
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    ns = argparse.Namespace(rig="brake-2dof", ramp=None, duration=None, effect=[], seed=1, rate=None,
-                            truth=False, no_figure=False, output=str(out / "brake-2dof-seed.h5"))
-    cmd_sim(ns)
-    print(f"demo: seed run of paper 001 written to {out}/ (open brake-2dof-seed.png)")
+    """The main job: record a ramp through the daemon on a simulated rig, then compare, diagnose, add, compare."""
+    from .demo import run_demo
+
+    r = run_demo(args.out, hidden=args.hidden, ramp_s=args.ramp_seconds)
+    line = f"demo: report in {args.out}/ (summary.json, history.png, 1-compare-seed/, 2-diagnose/"
+    if r.get("missing_effect_found"):
+        line += f", 3-compare-plus-{r['diagnosed']}/); error {r['error_seed']:.3g} -> {r['error_after']:.3g} m"
+    else:
+        line += "); no missing effect found"
+    print(line + f" in {r['seconds']:.0f} s")
     return 0
 
 
@@ -224,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware")
     demo.add_argument("--out", default="out/demo", help="report folder")
+    demo.add_argument("--hidden", default="accel-sign", help="hidden effect of the simulated rig")
+    demo.add_argument("--ramp-seconds", type=float, default=20.0, help="the 45 s seed ramp time-scaled to this")
     demo.set_defaults(func=cmd_demo)
     return ap
 

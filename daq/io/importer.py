@@ -82,7 +82,7 @@ def read_csv_table(path: str | Path) -> Table:
     """An interchange CSV (via ``interchange.read_csv``), with any bracketed units split off the header."""
     src = str(path)
     rec = read_csv(path)
-    table = Table(src, "csv", rec.t, None)
+    table = Table(src, "csv", rec.t, rec.meta.get("t_unit"))
     cols = {**rec.channels, **{f"truth_{k}": v for k, v in rec.truth.items()}}
     for header, x in cols.items():
         name, unit = split_header(header)

@@ -29,6 +29,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -170,6 +171,9 @@ def write_recording(rec: Recording, path: str | Path, truth_in_csv: bool = False
         raise InputError(str(path), "-o", "output must end in .h5, .hdf5 or .csv")
 
 
+_T_HEADER = re.compile(r"^t\s*(?:[\[(]\s*([^\[\]()]*?)\s*[\])])?$")
+
+
 def read_csv(path: str | Path) -> Recording:
     """Read an interchange CSV: header row, first column ``t`` [s], numbers only."""
     src = str(path)
@@ -183,8 +187,13 @@ def read_csv(path: str | Path) -> Recording:
         if not header:
             raise InputError(src, "(header)", "empty file")
         header = [h.strip() for h in header]
-        if header[0] != "t":
+        t_unit = None
+        m = _T_HEADER.match(header[0])
+        if m is None:
             raise InputError(src, "t", f"first column must be 't' [s], found {header[0]!r}")
+        if m.group(1) is not None:  # 't [s]': the unit is checked by the importer
+            t_unit = m.group(1).strip()
+            header[0] = "t"
         dup = next((h for i, h in enumerate(header) if h in header[:i]), None)
         if dup is not None:
             raise InputError(src, dup, "duplicate column")
@@ -204,7 +213,10 @@ def read_csv(path: str | Path) -> Recording:
         raise InputError(src, "t", "need at least two rows with strictly increasing t")
     channels = {h: data[:, i] for i, h in enumerate(header) if i > 0 and not h.startswith("truth_")}
     truth = {h.removeprefix("truth_"): data[:, i] for i, h in enumerate(header) if h.startswith("truth_")}
-    return Recording(None, data[:, 0], channels, truth=truth)
+    rec = Recording(None, data[:, 0], channels, truth=truth)
+    if t_unit is not None:
+        rec.meta["t_unit"] = t_unit
+    return rec
 
 
 def _isfloat(x: str) -> bool:
@@ -288,6 +300,31 @@ def _stream_channels(g: h5py.Group) -> list[str]:
     return [n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(names)]
 
 
+def _device_time_on_host(device_t: np.ndarray, host_t: np.ndarray, info_rate=None) -> np.ndarray:
+    """A device-clocked stream's sample times on the host clock, from one straight line over the run.
+
+    Why: live, the host time of each sample comes from an online clock estimate that steps
+    (by up to a few ms) as it learns the offset and drift; at 0.17 m/s belt speed one
+    millisecond is 170 um of apparent displacement error. Offline we fit host = a + b*device
+    once: through the lower envelope (host time = device time + the smallest transport
+    delay). Falls back to the recorded times when the device clock is not usable (it
+    restarted, or too few samples); a clock that restarts mid-run is left to the online times.
+    """
+    d = np.asarray(device_t, dtype=np.float64)
+    h = np.asarray(host_t, dtype=np.float64)
+    if d.size < 10 or not np.all(np.isfinite(d)) or not np.all(np.diff(d) > 0):
+        return h
+    # lower envelope: the 5 % smallest residuals of a first straight-line fit, refitted
+    b, a = np.polyfit(d, h, 1)
+    r = h - (a + b * d)
+    low = r <= np.quantile(r, 0.05)
+    if low.sum() >= 2 and np.ptp(d[low]) > 0.5 * np.ptp(d):
+        b, a = np.polyfit(d[low], h[low], 1)
+    if not (0.99 < b < 1.01):  # not the same seconds: do not trust it
+        return h
+    return a + b * d
+
+
 def _read_stream(name: str, g: h5py.Group, src: str) -> _Stream | None:
     if "t" not in g:
         raise InputError(src, f"streams/{name}/t", "missing dataset")
@@ -297,6 +334,8 @@ def _read_stream(name: str, g: h5py.Group, src: str) -> _Stream | None:
     if n == 0 or not chans:
         return None
     t = g["t"][:n]
+    if "device_t" in g and g["device_t"].shape[0] >= n:
+        t = _device_time_on_host(g["device_t"][:n], t, info_rate=g.attrs.get("rate_hz"))
     data = {c: np.asarray(g[c][:n], dtype=np.float64) for c in chans}
     units = {c: str(g[c].attrs.get("unit", "")) for c in chans}
     info = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in g.attrs.items() if k != "channels"}

@@ -29,6 +29,7 @@ REQUIRED = {
     "drum-pendulum": ("phi", "vel", "thrust", "drum_speed"),
     "belt-ndof": ("x1", "vb"),
 }
+OPTIONAL = ("vb_set", "temp")
 
 
 def sg(x: np.ndarray, rate: float, half_s: float, deriv: int = 0, degree: int = 3) -> np.ndarray:
@@ -133,15 +134,19 @@ class RigData(ABC):
         return smooth, np.polynomial.polynomial.polyval(tt, coef), "cubic fit of the measured speed"
 
     def _sigma(self, name: str, x: np.ndarray) -> tuple[float, str]:
-        """Noise from the data; the rig config's instrument figure when the data estimate is signal-dominated."""
+        """White-noise level of a channel: the data's estimate, capped by the instrument's declared figure.
+
+        The third-difference estimate is an upper bound (at 100 Hz the motion itself leaks in), so
+        where the rig config declares the instrument's noise the smaller of the two is the tighter
+        bound we know. Without a declared figure the data estimate is all there is.
+        """
         est = noise_sigma(x)
         ch = self.cfg.channels.get(name)
         if ch is not None and (ch.noise_std > 0 or ch.lsb > 0):
             nominal = math.sqrt(ch.noise_std**2 + ch.lsb**2 / 12.0)
-            if not np.isfinite(est) or est > 3.0 * nominal:
-                return nominal, "rig config (data estimate signal-dominated)"
-            if est < nominal / 3.0:
-                return max(est, 1e-12), "data"
+            if not np.isfinite(est) or est >= nominal:
+                return nominal, "rig config (the data's estimate is higher: signal leaks into it)"
+            return max(est, 1e-12), "data"
         return (est if np.isfinite(est) and est > 0 else 1e-9), "data"
 
     def _temp(self, rec: Recording, rate: float) -> np.ndarray | None:
@@ -204,7 +209,10 @@ class BrakeData(RigData):
         mech = self.cfg.mechanics
         load_rate = (mech.k1_N_per_m + mech.k2_N_per_m) * x1d + mech.k2_N_per_m * y1d  # as brake2dof.rhs
         ts, q = stick_tail(v_rel, load_rate, rate, self.cfg)
-        m.context = {"x1_smooth": sg(x1, rate, half), "y1_smooth": r * sg(phi, rate, half), "x1_dot": x1d,
+        # start positions: lightly smoothed at kHz rates; at 100 Hz a local cubic over +-30 ms would bend
+        # through the nearest slip (bias ~100 um), while the raw sample is off by the sensor noise only
+        pos = (lambda x: sg(x, rate, half)) if rate >= 500 else (lambda x: x)
+        m.context = {"x1_smooth": pos(x1), "y1_smooth": r * pos(phi), "x1_dot": x1d,
                      "y1_dot": y1d, "stick_clock": ts, "load_rate": q}
         return m
 
@@ -256,7 +264,7 @@ class DrumData(RigData):
         mech = self.cfg.mechanics
         load_rate = mech.k_N_per_m * mech.Rs_m**2 * np.cos(2.0 * phi) * w / R  # as drum.rhs
         ts, q = stick_tail(v_rel, load_rate, rate, self.cfg)
-        m.context = {"phi_smooth": sg(phi, rate, half), "w": w, "travel": R * (theta + theta0),
+        m.context = {"phi_smooth": sg(phi, rate, half) if rate >= 500 else phi, "w": w, "travel": R * (theta + theta0),
                      "stick_clock": ts, "load_rate": q, "thrust": thrust}
         return m
 

@@ -41,16 +41,18 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     shot = pr.shoot(fitted.values, wins, vel)
     fig = plt.figure(figsize=(15, 10), constrained_layout=True)
     gs = fig.add_gridspec(3, 3)
-    # time histories
-    ax = fig.add_subplot(gs[0, :2])
+    # time histories: one panel per window (early, middle, late)
+    sub = gs[0, :2].subgridspec(1, len(wins), wspace=0.08)
     for j, w in enumerate(wins):
+        ax = fig.add_subplot(sub[0, j])
         t = m.t[shot.index[j]]
-        ax.plot(t, shot.meas[primary][j], "k.", ms=2, label="measured" if j == 0 else None)
-        ax.plot(t, shot.pred[primary][j], "C1-", lw=1.2, label="model (window from the data's state)" if j == 0 else None)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(f"{primary} [{unit}]")
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title("measured vs model: early, middle and late windows")
+        ax.plot(t, shot.meas[primary][j], "k.", ms=2, label="measured")
+        ax.plot(t, shot.pred[primary][j], "C1-", lw=1.2, label="model from the data's state")
+        ax.set_xlabel("t [s]")
+        if j == 0:
+            ax.set_ylabel(f"{primary} [{unit}]")
+            ax.legend(loc="best", fontsize=7)
+        ax.set_title(("early", "middle", "late")[j] if len(wins) == 3 else f"window {w}", fontsize=9)
     # phase plane
     ax = fig.add_subplot(gs[0, 2])
     xs = m.outputs[primary]

@@ -49,11 +49,16 @@ def load_data(path: str | Path, rig: str | None) -> Recording:
 
 
 def _uniform(rec: Recording, source: str) -> Recording:
-    """Recorder files carry host timestamps (jitter, NaN where a stream had not started): make them uniform."""
+    """Recorder files carry host timestamps (jitter, repeats, NaN where a stream had not started) and extra
+    streams (estimator output): keep the channels a model reads, over the stretch where all have data,
+    on a uniform time base."""
+    from .data import OPTIONAL, REQUIRED
+
+    need = [c for c in (*REQUIRED.get(rec.rig or "", ()), *OPTIONAL) if c in rec.channels]
     t = np.asarray(rec.t, dtype=float)
-    good = np.ones(t.size, bool)
-    for x in rec.channels.values():
-        good &= np.isfinite(x)
+    good = np.isfinite(t)
+    for c in need:
+        good &= np.isfinite(rec.channels[c])
     idx = np.flatnonzero(good)
     if idx.size < 2:
         raise InputError(source, "t", "no stretch where every channel has data")
@@ -61,14 +66,18 @@ def _uniform(rec: Recording, source: str) -> Recording:
     t = t[lo:hi]
     ch = {k: np.asarray(v[lo:hi], dtype=float) for k, v in rec.channels.items()}
     dt = np.diff(t)
-    if np.any(dt <= 0):
-        raise InputError(source, "t", "times must increase strictly")
-    rate = 1.0 / float(np.median(dt))
-    if np.max(np.abs(dt * rate - 1.0)) <= 0.01 and all(np.all(np.isfinite(v)) for v in ch.values()):
+    rate = 1.0 / float(np.median(dt)) if np.median(dt) > 0 else 0.0
+    if rate <= 0 or np.any(dt < 0) and np.sum(dt < 0) > 0.01 * dt.size:
+        raise InputError(source, "t", "times must increase")
+    if np.all(dt > 0) and np.max(np.abs(dt * rate - 1.0)) <= 0.01 and all(np.all(np.isfinite(ch[c])) for c in need):
         return Recording(rec.rig, t, ch, rec.units, rec.meta, {})
+    keep = np.concatenate([[True], dt > 0])  # repeated host times: keep the first
+    keep &= np.maximum.accumulate(t) == t
+    t = t[keep]
     tu = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * rate)) + 1) / rate
     out = {}
     for k, v in ch.items():
+        v = v[keep]
         ok = np.isfinite(v)
         out[k] = np.interp(tu, t[ok], v[ok]) if ok.sum() >= 2 else np.full(tu.size, np.nan)
     return Recording(rec.rig, tu, out, rec.units, {**rec.meta, "resampled_Hz": rate}, {})

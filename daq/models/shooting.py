@@ -66,6 +66,10 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
     L = min(L, m.n // 4)
     edge = max(3, int(0.01 * m.rate))  # smoothing filters are less accurate at the very ends
     stuck = np.abs(m.v_rel) < v_stick if m.v_rel is not None else np.zeros(m.n, bool)
+    # only where the belt moves: a recording that starts before the drive (or runs on after it stops)
+    # says nothing about friction, and there the command and the belt disagree about when motion starts
+    moving = np.abs(m.drive_measured) > 0.05 * np.max(np.abs(m.drive_measured))
+    moving &= np.abs(m.drive_command) > 0.05 * np.max(np.abs(m.drive_command))
     good = stuck.mean() > 0.05
     starts: list[int] = []
     i = edge
@@ -73,12 +77,15 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
         if good:
             j = i
             limit = min(m.n - L - edge, i + L)
-            while j < limit and not (stuck[j] and stuck[max(j - 2, 0)]):
+            while j < limit and not (stuck[j] and stuck[max(j - 2, 0)] and moving[j] and moving[min(j + L, m.n - 1)]):
                 j += 1
             if j >= limit:
-                i = limit
+                i = limit + 1
                 continue
             i = j
+        if not good and not (moving[i] and moving[min(i + L, m.n - 1)]):
+            i += 1
+            continue
         starts.append(i)
         i += L
     if not starts:
