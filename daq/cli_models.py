@@ -185,9 +185,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         _json_out(res)
     else:
         print(d.summary)
-        print(f"  {'effect':24s} {'reduction':>9s} {'t':>6s}  params")
+        print(f"  {'effect':24s} {'reduction':>9s} {'z':>6s}  params")
         for c in res["candidates"]:
-            print(f"  {c['effect']:24s} {c['reduction']:9.2f} {c['t_stat']:6.1f}  "
+            print(f"  {c['effect']:24s} {c['reduction']:9.2f} {c['consistency_z']:6.1f}  "
                   + ", ".join(f"{k.rsplit('.', 1)[-1]}={v:.4g}" for k, v in c["values"].items()))
         if not d.found and d.correlations:
             print("  residual correlates with: " + ", ".join(

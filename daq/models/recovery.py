@@ -46,7 +46,7 @@ def run_case(rig: str, hidden: str | None, removed: str | None, rate: float, see
         not j["missing_effect_found"]
     return {"rig": rig, "hidden": hidden or (f"(seed model without {removed})" if removed else "none"),
             "rate_Hz": rate, "found": j["missing_effect_found"], "ranked_first": top["effect"],
-            "reduction": top["reduction"], "t_stat": top["t_stat"], "second": j["candidates"][1]["effect"],
+            "reduction": top["reduction"], "consistency_z": top["consistency_z"], "second": j["candidates"][1]["effect"],
             "second_reduction": j["candidates"][1]["reduction"], "error": j["error"], "noise_floor": j["noise_floor"],
             "fitted": top["values"], "pass": bool(ok), "seconds": time.perf_counter() - t0}
 
@@ -57,14 +57,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     rows = []
-    print("| rig | hidden | rate | found | ranked first | reduction | t | runner-up | error / floor | pass |")
+    print("| rig | hidden | rate | found | ranked first | reduction | z | runner-up | error / floor | pass |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for rate in args.rate or [1000.0, 100.0]:
         for rig, hidden, removed in CASES:
             r = run_case(rig, hidden, removed, rate)
             rows.append(r)
             print(f"| {r['rig']} | {r['hidden']} | {r['rate_Hz']:g} Hz | {r['found']} | {r['ranked_first']} | "
-                  f"{r['reduction']:.2f} | {r['t_stat']:.1f} | {r['second']} ({r['second_reduction']:.2f}) | "
+                  f"{r['reduction']:.2f} | {r['consistency_z']:.1f} | {r['second']} ({r['second_reduction']:.2f}) | "
                   f"{r['error']:.3g} / {r['noise_floor']:.3g} | {'yes' if r['pass'] else 'NO'} |", flush=True)
     if args.json:
         with open(args.json, "w") as fh:

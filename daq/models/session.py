@@ -126,7 +126,7 @@ class Session:
     def problem(self, model: Model) -> Problem:
         return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model))
 
-    def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 25) -> Fitted:
+    def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 40) -> Fitted:
         """Fit the model's free parameters on the fit windows, then score it on the held-out ones."""
         pr = self.problem(model)
         params = model.params()
@@ -134,16 +134,20 @@ class Session:
         bounds = {n: (params[n].lo if params[n].lo is not None else -np.inf,
                       params[n].hi if params[n].hi is not None else np.inf) for n in free}
         # Starts: the model file's values (what `model add` + refit does), and, when refining a fitted
-        # model, its fitted values with the new effect switched off. Neither alone is safe: the warm
-        # start can sit in the smaller model's compromise (a local minimum, e.g. bearing friction hidden
-        # behind extra damping), the cold one can be far away. Both run on half windows; the better goes on.
+        # model, its fitted values with the new effect at its start values and switched off. No one
+        # start is safe: the warm ones can sit in the smaller model's compromise (a local minimum, e.g.
+        # bearing friction hidden behind extra damping), the cold one can be far away (force-rate needs
+        # the fitted level and a non-zero gain). All run on half windows; the best goes on.
         starts: list[tuple[dict[str, float], np.ndarray | None]] = [(dict(pr.builder.base_values), None)]
         if warm is not None:
             new = self._new_keys(warm.model, model)
             values = dict(pr.builder.base_values)
             values.update({k: v for k, v in warm.values.items() if k in values and k not in new})
-            values.update(switched_off(model, new))
-            starts.append((values, warm.fit.velocities))
+            starts.append((dict(values), warm.fit.velocities))  # the new effect at its start values
+            off = switched_off(model, new)
+            if any(values[k] != v for k, v in off.items()):
+                values.update(off)
+                starts.append((values, warm.fit.velocities))  # ... and switched off
         fw, hw = self.win.select(False), self.win.select(True)
         half = max(MIN_CONTINUATION, self.win.length // 2)
         best = None
