@@ -166,11 +166,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
     r = run_demo(args.out, hidden=args.hidden, ramp_s=args.ramp_seconds)
-    line = f"demo: report in {args.out}/ (summary.json, history.png, 1-compare-seed/, 2-diagnose/"
-    if r.get("missing_effect_found"):
-        line += f", 3-compare-plus-{r['diagnosed']}/); error {r['error_seed']:.3g} -> {r['error_after']:.3g} m"
-    else:
-        line += "); no missing effect found"
+    added = ", ".join(r["added"]) or "nothing"
+    line = (f"demo: report in {args.out}/ (summary.json, history.png, one folder per round); added {added}; "
+            f"error {r['error_seed']:.3g} -> {r['error_final']:.3g} m (noise floor {r['noise_floor']:.3g} m)")
     print(line + f" in {r['seconds']:.0f} s")
     return 0
 
