@@ -158,11 +158,21 @@ class Session:
                 best = pre
         values, vel = best.values, best.velocities
         res = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter)
+        # A joint LM step can throw one window's start velocities into a poor local minimum that the
+        # global cost hides; re-fit every fit window's velocities from the data (parameters fixed, as
+        # for held-out windows) and keep, per window, the better of the two.
+        again = pr.fit_velocities(res.values, fw, max_iter=10)
+        e_joint = self._weighted(pr.window_errors(res.values, fw, res.velocities))
+        e_again = self._weighted(pr.window_errors(res.values, fw, again.velocities))
+        res.velocities = np.where((e_again < e_joint)[:, None], again.velocities, res.velocities)
         held = pr.fit_velocities(res.values, hw, max_iter=10) if hw.size else res
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
         return Fitted(fitted_model, res.values, res, held, pr,
                       pr.window_errors(res.values, hw, held.velocities) if hw.size else {},
                       pr.window_errors(res.values, fw, res.velocities))
+
+    def _weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
+        return sum(v / self.m.sigma[k] ** 2 for k, v in ms.items())
 
     @staticmethod
     def _new_keys(old: Model, new: Model) -> set[str]:
