@@ -95,6 +95,10 @@ def test_streams_units_motor_and_clean_stop(bench):
     drivers.motor.set_speed(0.1)
     lis.until(lambda: lis.blocks["motor"][-1].column("vb_set")[-1] == pytest.approx(0.1), "set point 0.1")
     lis.until(lambda: abs(lis.blocks["motor"][-1].column("vb")[-1] - 0.1) < 0.01, "belt speed near 0.1")
+    # The regulator's replies carry no tag: on a starved machine a late SPD? reply from before the
+    # set point can still be taken for a later poll's (seen once in CI). Until the protocol tags its
+    # replies (next session), wait for the status to show the set point instead of reading it once.
+    lis.until(lambda: acq.status()["motor"]["setpoint"] == pytest.approx(0.1), "status shows set point 0.1")
     st = acq.status()
     assert st["motor"]["setpoint"] == pytest.approx(0.1)
     assert st["sources"]["can"]["state"] == "connected" and st["sources"]["can"]["samples"] > 0
