@@ -7,13 +7,12 @@ paper's number in a comment of the TOML file; chosen values say "chosen".
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .errors import InputError
+from .errors import InputError, parse_toml, read_text
 from .physics.effects import CATALOG
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
@@ -279,15 +278,7 @@ def load_rig(name_or_path: str | Path) -> RigConfig:
         path = CONFIG_DIR / f"{name_or_path}.toml"
         if not path.exists():
             raise InputError(str(name_or_path), "rig", f"unknown rig (known: {', '.join(rig_ids())})")
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputError(str(path), "(file)", exc.strerror or str(exc)) from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(str(path), "(syntax)", str(exc)) from None
-    return parse_rig(data, str(path))
+    return parse_rig(parse_toml(read_text(path), str(path)), str(path))
 
 
 def config_text(cfg: RigConfig) -> str:

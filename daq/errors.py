@@ -14,3 +14,23 @@ class InputError(Exception):
         self.field = field
         self.message = message
         super().__init__(f"{source}: {field}: {message}")
+
+
+def read_text(path) -> str:
+    """A user's input file as text; an unreadable file is an InputError naming it."""
+    from pathlib import Path
+
+    try:
+        return Path(path).read_text()
+    except OSError as exc:
+        raise InputError(str(path), "(file)", exc.strerror or str(exc)) from None
+
+
+def parse_toml(text: str, source: str) -> dict:
+    """TOML text as a mapping; a syntax error is an InputError naming the file."""
+    import tomllib
+
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(source, "(syntax)", str(exc)) from None

@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import csv
 import math
-import tomllib
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import InputError
+from .errors import InputError, parse_toml, read_text
 
 EXP_POINTS = 200  # samples per exponential segment in the table
 
@@ -129,17 +128,11 @@ def load_ramp(path: str | Path) -> tuple[Ramp | None, np.ndarray, np.ndarray]:
     """Load a ramp file (.toml segments or .csv table t,vb); returns (ramp or None, t, v)."""
     path = Path(path)
     src = str(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputError(src, "(file)", exc.strerror or str(exc)) from None
+    text = read_text(path)
     if path.suffix.lower() == ".csv":
         rt, rv = _csv_table(text, src)
         return None, rt, rv
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(src, "(syntax)", str(exc)) from None
+    data = parse_toml(text, src)
     try:
         ramp = Ramp.model_validate(data)
     except ValidationError as exc:

@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..config import RigConfig, load_rig
-from ..errors import InputError
+from ..errors import InputError, parse_toml, read_text
 from ..physics.effects import CATALOG
 
 SECTIONS = ("friction", "mechanics")
@@ -198,15 +197,7 @@ def rig_config_for(model: Model, source: str = "model") -> RigConfig:
 
 def load_model(path: str | Path) -> Model:
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise InputError(str(p), "(file)", exc.strerror or str(exc)) from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(str(p), "(syntax)", str(exc)) from None
-    model = parse_model(data, str(p))
+    model = parse_model(parse_toml(read_text(p), str(p)), str(p))
     # user effect paths are relative to the model file
     for eff in model.effects.values():
         if eff.path is not None and not Path(eff.path).is_absolute():
