@@ -89,7 +89,7 @@ def _session(args: argparse.Namespace):
 
     model = load_model(args.model)
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
-    s = Session.open(args.data, model, args.rig, progress=_say)
+    s = Session.open(args.data, model, args.rig)
     _say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
          f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
     return model, s

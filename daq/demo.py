@@ -95,7 +95,7 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
     for rnd in range(1, MAX_ROUNDS + 1):
         tag = "seed" if rnd == 1 else "+".join(list(model.effects)[3:])
         diag = diagnose(session, model, progress=lambda m: _line("    " + m))
-        res = compare(session, diag.base, {**session.noise_floor(diag.base), session.primary: diag.floor})
+        res = compare(session, diag.base, diag.floors)
         folder = out / f"{rnd}-{tag}"
         _report(session, diag.base, res, folder)
         diagnose_figure(session, diag, folder / "diagnose.png")

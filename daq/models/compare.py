@@ -26,19 +26,8 @@ def _rms(x: np.ndarray) -> float:
 
 def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Sample indices and residuals (model - measured) of every window (fit and held-out), start excluded."""
-    pr = fitted.problem
-    fw, hw = fitted.fit.windows, fitted.held.windows
-    parts_idx, parts = [], {k: [] for k in session.m.outputs}
-    for wins, vel in ((fw, fitted.fit.velocities), (hw, fitted.held.velocities)):
-        if wins.size == 0 or wins is hw and hw is fw:
-            continue
-        shot = pr.shoot(fitted.values, wins, vel)
-        parts_idx.append(shot.index[:, 1:].ravel())
-        for k in parts:
-            parts[k].append((shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel())
-    idx = np.concatenate(parts_idx)
-    order = np.argsort(idx, kind="stable")
-    return idx[order], {k: np.concatenate(v)[order] for k, v in parts.items()}
+    shot = fitted.problem.shoot(fitted.values, session.win.select(None), fitted.velocities())
+    return shot.index[:, 1:].ravel(), {k: (shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel() for k in shot.pred}
 
 
 def regimes(session: Session, idx: np.ndarray) -> dict[str, np.ndarray]:

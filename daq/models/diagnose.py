@@ -47,11 +47,6 @@ def lacking(model: Model) -> list[str]:
     return [n for n, s in CATALOG.items() if model.rig in s.rigs and n not in model.effects]
 
 
-def held_out_weighted(f: Fitted, sigma: dict[str, float]) -> np.ndarray:
-    """Per held-out window: mean-square error of all outputs, each in units of its noise."""
-    return sum(f.ms_held[k] / sigma[k] ** 2 for k in f.ms_held)
-
-
 def consistency(d: np.ndarray) -> float:
     """How consistently the held-out windows improved: the Wilcoxon signed-rank statistic as a z score.
 
@@ -71,7 +66,7 @@ def score(base: Fitted, cand: Fitted, effect: str, floor: float, session: Sessio
     e0, e1 = base.rms(primary), cand.rms(primary)
     excess = e0 - floor
     reduction = (e0 - e1) / excess if excess > 0 else 0.0
-    d = held_out_weighted(base, session.m.sigma) - held_out_weighted(cand, session.m.sigma)
+    d = session.weighted(base.ms_held) - session.weighted(cand.ms_held)
     t = consistency(d)
     added = [k for k in cand.model.free_names() if k not in base.model.params()]
     new = {k: v for k, v in cand.values.items() if k.startswith(f"effects.{effect}.")}
@@ -145,9 +140,9 @@ def window_context(session: Session) -> dict[str, np.ndarray]:
 def correlations(session: Session, base: Fitted) -> list[dict[str, float | str]]:
     """Spearman correlation of each window's error (base model) with measured quantities, strongest first."""
     ms = np.full(session.win.starts.size, np.nan)
-    ms[base.fit.windows] = sum(base.ms_fit[k] / session.m.sigma[k] ** 2 for k in base.ms_fit)
+    ms[base.fit.windows] = session.weighted(base.ms_fit)
     if base.ms_held:
-        ms[session.win.select(True)] = held_out_weighted(base, session.m.sigma)
+        ms[session.win.select(True)] = session.weighted(base.ms_held)
     ok = np.isfinite(ms)
     out = []
     for name, x in window_context(session).items():
@@ -166,7 +161,8 @@ def correlations(session: Session, base: Fitted) -> list[dict[str, float | str]]
 @dataclass
 class Diagnosis:
     base: Fitted
-    floor: float
+    floor: float  # of the primary signal
+    floors: dict[str, float]  # every output's
     candidates: list[Candidate]
     found: bool
     summary: str
@@ -204,7 +200,8 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     if base is None:
         say(f"fitting the model ({len(model.free_names())} free parameters) on {len(session.win.select(False))} windows")
         base = session.fit(model)
-    floor = session.noise_floor(base)[session.primary]
+    floors = session.noise_floor(base)
+    floor = floors[session.primary]
     e0 = base.rms(session.primary)
     say(f"model error {e0:.4g} {session.m.units[session.primary]} (noise floor {floor:.4g}); "
         f"trying {len(names)} effects: {', '.join(names)}")
@@ -231,4 +228,4 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
         summary = (f"The model's error ({e0:.3g} {unit}) is {excess_ratio:.1f}x above the noise floor, but no catalog "
                    f"effect explains it (best: '{best.effect if best else '-'}', {best.reduction if best else 0:.0%}). "
                    f"The residual follows: {follows}.")
-    return Diagnosis(base, floor, cands, found, summary, corr)
+    return Diagnosis(base, floor, floors, cands, found, summary, corr)

@@ -34,11 +34,8 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     unit = m.units[primary]
     pr = fitted.problem
     wins = _pick_windows(session)
-    fw = list(fitted.fit.windows)
-    hw = list(fitted.held.windows)
-    vel = np.array([fitted.fit.velocities[fw.index(w)] if w in fw else fitted.held.velocities[hw.index(w)]
-                    for w in wins])
-    shot = pr.shoot(fitted.values, wins, vel)
+    vel_all = fitted.velocities()
+    shot = pr.shoot(fitted.values, wins, vel_all[wins])
     fig = plt.figure(figsize=(15, 10), constrained_layout=True)
     gs = fig.add_gridspec(3, 3)
     # time histories: one panel per window (early, middle, late)
@@ -69,10 +66,6 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     # friction vs relative velocity, both branches
     ax = fig.add_subplot(gs[1, 0])
     allw = session.win.select(None)
-    vel_all = np.zeros((allw.size, pr.n_vel))
-    vel_all[fitted.fit.windows] = fitted.fit.velocities
-    if fitted.held.windows is not fitted.fit.windows:
-        vel_all[fitted.held.windows] = fitted.held.velocities
     sh_all = pr.shoot(fitted.values, allw, vel_all)
     v = sh_all.aux[..., AUX.V_REL].ravel()
     F = sh_all.aux[..., AUX.F].ravel()

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -22,7 +21,6 @@ from .data import Measured, RigData, rig_data
 from .shooting import FitResult, Problem, Windows, make_windows
 from .spec import Model, drive_source, rig_config_for
 
-Progress = Callable[[str], None]
 MIN_CONTINUATION = 8  # samples
 
 
@@ -100,17 +98,24 @@ class Fitted:
             self.ms_fit[output] if which == "fit" else np.concatenate([self.ms_fit[output], self.ms_held[output]]))
         return float(math.sqrt(np.mean(ms))) if ms.size else float("nan")
 
+    def velocities(self) -> np.ndarray:
+        """Start velocities of every window of the session (fit windows' from the fit, held-out from theirs)."""
+        vel = np.zeros((self.fit.windows.size + (self.held.windows.size if self.held is not self.fit else 0),
+                        self.fit.velocities.shape[1]))
+        vel[self.fit.windows] = self.fit.velocities
+        if self.held is not self.fit:
+            vel[self.held.windows] = self.held.velocities
+        return vel
+
 
 class Session:
-    def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90,
-                 progress: Progress | None = None) -> None:
+    def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90) -> None:
         self.rec = rec
         self.source = source
         self.cfg = cfg
         self.rd: RigData = rig_data(cfg, source)
         self.m: Measured = self.rd.prepare(rec, source)
         self.win: Windows = make_windows(self.m, cfg.contact.v_stick_m_per_s, max_windows=max_windows)
-        self.progress = progress or (lambda msg: None)
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
@@ -162,8 +167,8 @@ class Session:
         # global cost hides; re-fit every fit window's velocities from the data (parameters fixed, as
         # for held-out windows) and keep, per window, the better of the two.
         again = pr.fit_velocities(res.values, fw, max_iter=10)
-        e_joint = self._weighted(pr.window_errors(res.values, fw, res.velocities))
-        e_again = self._weighted(pr.window_errors(res.values, fw, again.velocities))
+        e_joint = self.weighted(pr.window_errors(res.values, fw, res.velocities))
+        e_again = self.weighted(pr.window_errors(res.values, fw, again.velocities))
         res.velocities = np.where((e_again < e_joint)[:, None], again.velocities, res.velocities)
         held = pr.fit_velocities(res.values, hw, max_iter=10) if hw.size else res
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
@@ -171,7 +176,8 @@ class Session:
                       pr.window_errors(res.values, hw, held.velocities) if hw.size else {},
                       pr.window_errors(res.values, fw, res.velocities))
 
-    def _weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
+    def weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
+        """Per window: the mean-square error of all outputs, each in units of its noise."""
         return sum(v / self.m.sigma[k] ** 2 for k, v in ms.items())
 
     @staticmethod
@@ -220,7 +226,7 @@ class Session:
         ms = pr.window_errors(fitted.values, allw, vel.velocities)
         # A window whose start-velocity fit ran away (seen once in 90 windows on a 600 s record) is
         # not what a perfect model shows: windows more than 5x the median rms are left out.
-        wsum = sum(v / self.m.sigma[k] ** 2 for k, v in ms.items())
+        wsum = self.weighted(ms)
         keep = wsum <= 25.0 * np.median(wsum)
         return {k: float(math.sqrt(np.mean(v[keep]))) for k, v in ms.items()}
 

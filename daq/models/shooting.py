@@ -21,7 +21,6 @@ import numpy as np
 from .build import Builder
 from .data import Measured, RigData
 
-_DEBUG = False
 WINDOW_CYCLES = 1.5  # window length in stick-slip periods
 MIN_WINDOW_SAMPLES = 12
 
@@ -147,7 +146,6 @@ class Problem:
         self.idx = self.win.starts[:, None] + np.arange(self.win.length)[None, :]
         self.meas = {k: x[self.idx] for k, x in self.m.outputs.items()}
         self.n_vel = len(self.rd.velocity_slots)
-        self._starts_cache: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------------ simulation
 
@@ -266,7 +264,6 @@ class Problem:
                     rel = (cost - cost_new) / max(cost, 1e-300)
                     theta, V, R, cost = th_new, V_new, R_new, cost_new
                     lam = max(lam / 5.0, 1e-7)
-                    if _DEBUG: print(f"    it cost {cost:.4g} lam {lam:.2g} try {_try}")
                     break
                 lam *= 4.0
             if not improved:
