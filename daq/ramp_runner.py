@@ -257,10 +257,13 @@ class RampRunner:
                 v = self.command_at(tc)
                 new_seg = self.segment_at(tc)
                 while seg < new_seg:
+                    # stamped with the boundary's programme time, not the tick that noticed it (a late
+                    # tick on a loaded machine would otherwise move the boundary)
+                    tb = float(self.segment_starts[seg + 1])
                     if seg >= 0:
-                        self._emit(RampEvent("segment_end", tc, seg, self.segment_kinds[seg]))
+                        self._emit(RampEvent("segment_end", tb, seg, self.segment_kinds[seg]))
                     seg += 1
-                    self._emit(RampEvent("segment_start", tc, seg, self.segment_kinds[seg]))
+                    self._emit(RampEvent("segment_start", tb, seg, self.segment_kinds[seg]))
                 meas = self._send(tc, v, measure=(k % self.cfg.measure_every == 0) or done)
                 frac = 1.0 if self.duration <= 0 else min(1.0, tc / self.duration)
                 self._report(RampProgress("running", tc, frac, seg, v, meas))
