@@ -217,11 +217,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true")
     bench.set_defaults(func=cmd_bench)
 
+    from .cli_analyses import register as register_analyses
     from .cli_daemon import register as register_daemon
     from .cli_models import register as register_models
 
     register_daemon(sub)
     register_models(sub)
+    register_analyses(sub)
 
     demo = sub.add_parser("demo", help="the main job on simulated hardware")
     demo.add_argument("--out", default="out/demo", help="report folder")

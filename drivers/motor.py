@@ -18,19 +18,7 @@ import serial
 from pydantic import BaseModel, ConfigDict, Field
 
 from .base import Backoff, BackoffCfg, DriverState, EventLog, close_quietly
-from .motor_protocol import LineBuffer, ProtocolError, Status, decode, encode
-
-
-def answers(command: str, reply: str) -> bool:
-    """Whether ``reply`` can be the regulator's answer to ``command`` (docs/protocols/motor-regulator.md)."""
-    if reply.startswith("ERR "):
-        return True
-    cmd = command.split()[0] if command.split() else ""
-    if cmd in ("SPD?", "STAT?", "ID?"):
-        return reply.split()[0] == cmd[:-1] if reply.split() else False
-    if cmd == "HB":
-        return reply == command
-    return reply == "OK"
+from .motor_protocol import ERR_CHECKSUM, TAG_MODULUS, LineBuffer, ProtocolError, Status, decode, encode, tag, untag
 
 
 class MotorError(RuntimeError):
@@ -105,6 +93,7 @@ class SerialMotorRegulator(MotorDrive):
         self._lines = LineBuffer()
         self._pending: collections.deque[bytes] = collections.deque()  # lines read but not yet consumed
         self.stale_replies = 0  # late replies to timed-out requests, discarded
+        self._tag = 0  # the tag of the last request sent
         self._lock = threading.RLock()
         self._backoff = Backoff(cfg.backoff)
         self._hb_seq = 0
@@ -170,20 +159,27 @@ class SerialMotorRegulator(MotorDrive):
 
     # --- request/reply
     def _exchange(self, body: str) -> str:
-        """Send one command and return ITS reply body; retries corrupted or missing replies.
+        """Send one command and return ITS reply body; retries corrupted, refused-as-corrupt or missing replies.
 
-        Replies carry no tag, so a reply that comes after its request timed out would be read
-        as the answer to the next command, and every later exchange would stay one reply
-        behind (seen as ``bad SPD? reply ['HB', '14']`` on a loaded machine). Hence: stale
-        input is discarded before each command, and a reply that cannot answer this command
-        (wrong shape, wrong heartbeat counter) is discarded as stale, not returned.
+        Every request carries a fresh tag (``@n SPD?``) that the regulator echoes, so a reply that
+        arrives after its request timed out is recognised and discarded instead of being read as
+        the answer to the next command (which would leave the link one reply behind for good).
+        A write timeout is a starved host or a full line, not a lost port: pyserial raises it
+        after a complete write when the thread was descheduled past ``write_timeout``, so it is
+        handled like a missing reply (retry), and only an OS error drops the port.
         """
         assert self._port is not None
         for _ in range(self.cfg.retries + 1):
+            self._tag = (self._tag + 1) % TAG_MODULUS
             try:
                 self._discard_stale()
-                self._port.write(encode(body))
-                reply = self._read_reply(body)
+                try:
+                    self._port.write(encode(tag(self._tag, body)))
+                except serial.SerialTimeoutException:
+                    self.frame_errors += 1
+                    self.log.emit("frame_error", f"write timeout sending {body!r}")
+                    continue
+                reply = self._read_reply(self._tag)
             except (serial.SerialException, OSError) as exc:
                 self._drop_port()
                 self._backoff.failed(time.monotonic())
@@ -209,7 +205,9 @@ class SerialMotorRegulator(MotorDrive):
             self.stale_replies += stale
             self.log.emit("frame_error", f"discarded {stale} late reply(ies) before the next command")
 
-    def _read_reply(self, body: str) -> str | None:
+    def _read_reply(self, want: int) -> str | None:
+        """The body of the reply tagged ``want``; None on a corrupted reply, a command the regulator
+        received corrupted (untagged ``ERR 1``), or a timeout: the caller re-sends."""
         deadline = time.monotonic() + self.cfg.timeout_s
         assert self._port is not None
         while time.monotonic() < deadline:
@@ -219,15 +217,19 @@ class SerialMotorRegulator(MotorDrive):
             while self._pending:
                 line = self._pending.popleft()
                 try:
-                    reply = decode(line)
+                    n, reply = untag(decode(line))
                 except ProtocolError as exc:
                     self.frame_errors += 1
                     self.log.emit("frame_error", str(exc))
                     return None
-                if answers(body, reply):
+                if n == want:
                     return reply
+                if n is None and reply.startswith(f"ERR {ERR_CHECKSUM} "):
+                    self.frame_errors += 1  # our command arrived damaged: its tag could not be trusted
+                    self.log.emit("frame_error", "regulator received a corrupted command")
+                    return None
                 self.stale_replies += 1  # a late reply to an earlier request
-                self.log.emit("frame_error", f"discarded reply {reply!r}: does not answer {body!r}")
+                self.log.emit("frame_error", f"discarded reply {reply!r} tagged {n}: waiting for tag {want}")
         self.frame_errors += 1
         self.log.emit("frame_error", "reply timeout")
         return None

@@ -20,6 +20,8 @@ ERR_LATCHED = 5
 
 STATES = ("DISABLED", "RUNNING", "STOPPING", "ESTOP", "WATCHDOG")
 
+TAG_MODULUS = 10000  # request tags run 0..9999 and wrap
+
 
 class ProtocolError(ValueError):
     """A line that is not a valid protocol line (bad framing or checksum)."""
@@ -55,6 +57,21 @@ def decode(line: bytes) -> str:
         return body.decode("ascii")
     except UnicodeDecodeError:
         raise ProtocolError("non-ASCII body") from None
+
+
+def tag(n: int, body: str) -> str:
+    """``SPD?`` with tag 7 -> ``@7 SPD?``: the regulator answers ``@7 <reply>``, so a late reply is never
+    taken for the answer to a later command."""
+    return f"@{n % TAG_MODULUS} {body}"
+
+
+def untag(body: str) -> tuple[int | None, str]:
+    """``@7 SPD?`` -> (7, ``SPD?``); an untagged body -> (None, body) (a terminal typing commands by hand)."""
+    if body.startswith("@"):
+        head, _, rest = body.partition(" ")
+        if head[1:].isdigit():
+            return int(head[1:]), rest
+    return None, body
 
 
 class LineBuffer:

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.motor_protocol import (ERR_CHECKSUM, ERR_LATCHED, ERR_LIMIT, ERR_STATE, ERR_SYNTAX, LineBuffer,
-                                    ProtocolError, Status, decode, encode)
+                                    ProtocolError, Status, decode, encode, tag, untag)
 
 from .pty_port import PtyPort
 from .realtime import RealtimeRig
@@ -57,6 +57,8 @@ class SimMotorRegulator:
         self.watchdog_trips = 0
         self.silent = False  # fault: stop answering (a hung regulator)
         self.corrupt_replies = 0  # fault: corrupt the next N replies
+        self.late_replies = 0  # fault: answer the next N commands only after late_by_s (a starved regulator)
+        self.late_by_s = 0.0
         self._lines = LineBuffer()
         self._running = threading.Event()
         self._thread: threading.Thread | None = None
@@ -159,10 +161,14 @@ class SimMotorRegulator:
             else:
                 self.commands += 1
                 self.last_command = now
-                reply = self.handle(body)
+                n, command = untag(body)
+                reply = self.handle(command) if n is None else tag(n, self.handle(command))
             if self.silent:
                 continue
             raw = encode(reply)
+            if self.late_replies > 0:
+                self.late_replies -= 1
+                time.sleep(self.late_by_s)
             if self.corrupt_replies > 0:
                 self.corrupt_replies -= 1
                 raw = raw[:2] + bytes([raw[2] ^ 0x20]) + raw[3:]
