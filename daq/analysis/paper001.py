@@ -1013,10 +1013,9 @@ def friction_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     c.set_ylim(-2.0, 2.0)
     c.set_xlabel("V_rel [m/s]")
     c.set_ylabel("mu_eff = F/(m g)")
-    c.set_title(f"eq. (10) (quasi-static), kappa1 = {fr.kappa1:.3f}, kappa2 = {fr.kappa2:.4f}; law (7) fitted "
-                f"through it: mu0 = {p_m10['mu0'].value:.3f}, gamma = {p_m10['gamma'].value:.2f}\n"
-                "F/(m g) scatters about it: in slip the normal load of eq. (6) swings with the angular body",
-                fontsize=9)
+    c.set_title(f"eq. (10), quasi-static: kappa1 = {fr.kappa1:.3f}, kappa2 = {fr.kappa2:.4f}; law (7) fitted\n"
+                f"through it: mu0 = {p_m10['mu0'].value:.3f}, gamma = {p_m10['gamma'].value:.2f} (biased: in slip "
+                "N of eq. (6) swings)", fontsize=9)
     c.legend(fontsize=8, loc="upper left", markerscale=8)
     # (d) bias profile
     d = ax[1, 1]
@@ -1065,7 +1064,6 @@ def timeline_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     kinds = sorted({s.kind for s in trans.segments}, key=list(KIND_COLOURS).index)
     tl.legend(handles=[Patch(color=KIND_COLOURS[k], label=k) for k in kinds], ncol=len(kinds), fontsize=8,
               loc="lower left", bbox_to_anchor=(0, 1.0), frameon=False)
-    tl.set_title("detected segments", fontsize=10, loc="right")
     # cycle mismatch
     c = ax[2]
     for n in range(1, min(2, cfg.max_period) + 1):
@@ -1093,9 +1091,10 @@ def timeline_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
         for a_ in ax:
             for x in PAPER_160_BOUNDARIES:
                 a_.axvline(x, color="m", ls=":", lw=1.0)
-        ax[1].set_title("detected segments; dotted magenta: the paper's Fig. 8 boundaries (98, 110, 130, 135, "
-                        "140, 150 s)", fontsize=9, loc="right")
-    fig.suptitle(f"paper 001 transitions: {_name(res.data)} ({trans.n_cycles} cycles)")
+    marks = ("\ndotted magenta: the paper's Fig. 8 segment boundaries (98, 110, 130, 135, 140, 150 s)"
+             if ctx.paper_marks else "")
+    fig.suptitle(f"paper 001 transitions: {_name(res.data)} ({trans.n_cycles} cycles); detected segments below the "
+                 f"spectrogram{marks}")
     _save(fig, path)
 
 
