@@ -329,7 +329,8 @@ def test_drops_are_counted_in_the_event_table(tmp_path, recorder, tiny_pub):
     assert np.all(a.reshape(-1, n_rows) == seqs[:, None])  # whole blocks only
     assert np.all(np.diff(seqs) > 0)
     lost = [(c, s, d) for k, c, s, d in zip(ev["kind"], ev["count"], ev["source"], ev["detail"]) if k == "lost_blocks"]
-    assert lost and all(s == "recorder" and d.startswith("burst:") for _, s, d in lost)
+    assert lost and all(s == "recorder" for _, s, _ in lost)
+    lost = [x for x in lost if x[2].startswith("burst:")]  # a probe block queued at the start may be dropped too
     assert sum(c for c, _, _ in lost) == int(seqs[-1] - seqs[0]) + 1 - seqs.size > 0
 
 
