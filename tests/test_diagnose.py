@@ -85,8 +85,10 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
                                                ("brake-2dof", "temperature", 100.0)])
 def test_hidden_effect_is_ranked_first_and_removes_most_of_the_excess(rig, hidden, rate):
     cfg = load_rig(rig)
-    rec = simulate(cfg, effects=[parse_effect(hidden)], rate=rate, seed=21, duration=20.0)
-    s = Session(rec, "sim", cfg, max_windows=60)
+    # drum 14 s / 42 windows: recovered 0.95 and 0.97 on seeds 21 and 5 (20 s / 60 windows: 0.98), 30 % cheaper
+    duration, windows = (14.0, 42) if rig == "drum-pendulum" else (20.0, 60)
+    rec = simulate(cfg, effects=[parse_effect(hidden)], rate=rate, seed=21, duration=duration)
+    s = Session(rec, "sim", cfg, max_windows=windows)
     d = diagnose(s, seed_model(rig))
     assert d.found, d.summary
     assert d.candidates[0].effect == hidden
