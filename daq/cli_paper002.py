@@ -1,9 +1,76 @@
-"""Paper 002's analyses on the command line (placeholder until they land)."""
+"""Paper 002 (drum-pendulum) on the command line: ``daq analyse drum-mu`` and ``daq campaign drum``.
+
+Why here: the identification of paper 002 (mu(t) by eq. (2), law (3) fitted) and the campaign that
+runs it over a grid of thrusts and drum speeds through the daemon are one story; both print one
+JSON object with --json and write figures with the same JSON to --report / --out.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+from pathlib import Path
+
+from .errors import InputError
+
+
+def _default(o):
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)
+
+
+def cmd_drum_mu(args: argparse.Namespace) -> int:
+    from .analysis.paper002 import analyse_drum_mu, figures
+    from .io.interchange import atomic_path
+
+    res, series = analyse_drum_mu(args.data, rig=args.rig, v_min=args.v_min, guard_s=args.guard, mu1=args.mu1,
+                                  t_from=args.t_from, t_to=args.t_to)
+    if args.report:
+        rep = Path(args.report)
+        paths = figures(res, series, rep)
+        res.figures = [str(p) for p in paths]
+        with atomic_path(rep / "drum-mu.json") as tmp:
+            tmp.write_text(res.model_dump_json(indent=2))
+    out = res.model_dump(mode="json")
+    if args.json:
+        sys.stdout.write(json.dumps(out, indent=2, default=_default) + "\n")
+    else:
+        f = res.fit
+        print(f"law (3) on {f.n} samples (|v_wz| {f.v_range_m_per_s[0] * 1e3:.1f}-{f.v_range_m_per_s[1] * 1e3:.1f} mm/s), "
+              f"P = {res.thrust_N['mean']:.2f} N:")
+        for k, c in f.coefficients.items():
+            flag = "" if c.identified else "   (not identified: se > 25 %)"
+            print(f"  {k} = {c.value:.5g} +- {c.se if c.se is not None else float('nan'):.2g} {c.unit}{flag}")
+        print(f"  R^2 = {f.R2:.4f} (R = {f.R:.4f}), rms {f.rms:.2g}, effective samples {f.n_eff:.0f}"
+              + (f"; report in {args.report}/" if args.report else ""))
+    return 0
 
 
 def register(sub: argparse._SubParsersAction, analyse: argparse._SubParsersAction) -> None:
     """Add this paper's commands: under ``daq analyse`` (analyse) or at the top level (sub)."""
+    from .analysis.paper002 import GUARD_S, V_MIN
+
+    p = analyse.add_parser("drum-mu", help="paper 002: mu(t) by eq. (2), law (3) A-E fitted (drum-pendulum)")
+    p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS of the drum-pendulum rig")
+    p.add_argument("--rig", help="rig id or config TOML (default: the config stored in the recording)")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.add_argument("--report", help="folder for mu_t.png, mu_v.png, residuals.png and drum-mu.json")
+    p.add_argument("--v-min", type=float, default=V_MIN,
+                   help=f"slowest sliding speed fitted [m/s] (default {V_MIN:g}; see docs/campaign.md)")
+    p.add_argument("--guard", type=float, default=GUARD_S,
+                   help=f"samples this close [s] to a slower one are left out (default {GUARD_S:g})")
+    p.add_argument("--mu1", type=float, default=0.0,
+                   help="bearing friction coefficient mu1 of eq. (2) (default 0: the seed model has none)")
+    p.add_argument("--from", dest="t_from", type=float, help="analyse from this time [s]")
+    p.add_argument("--to", dest="t_to", type=float, help="... to this time [s]")
+    p.set_defaults(func=cmd_drum_mu)
+
+    from .campaign import register as register_campaign
+
+    register_campaign(sub)
