@@ -566,7 +566,8 @@ class Campaign:
             tmp.write_text(res.model_dump_json(indent=2))
         f = res.fit
         cell.result = CellResult(
-            coefficients={k: CellCoef(value=v.value, se=v.se, identified=v.identified) for k, v in f.coefficients.items()},
+            coefficients={k: CellCoef(value=v.value, se=v.se, identified=v.identified)
+                          for k, v in f.coefficients.items()},
             R2=f.R2, rms=f.rms, n=f.n, n_eff=f.n_eff, thrust_measured_N=res.thrust_N["mean"],
             v_range_m_per_s=f.v_range_m_per_s)
         cell.report, cell.status, cell.finished = str(rep), "done", _now()
@@ -669,6 +670,16 @@ def write_table(out: Path, st: CampaignState) -> tuple[Path, Path]:
     return csv_path, json_path
 
 
+def _config_law(c: CampaignCfg) -> dict[str, float]:
+    """The simulated rig's own law (3): its config's A, B, C, E and the seed effect's D (reference lines)."""
+    from .config import load_rig
+
+    cfg = load_rig(c.rig)
+    f = cfg.friction
+    d = float((cfg.seed_effects.get("velocity-strengthening") or {}).get("D", 0.0))
+    return {"A": f.A, "B": f.B_s_per_m, "C": f.C_s_per_m, "D": d, "E": f.E}
+
+
 def grid_figures(out: Path, st: CampaignState) -> list[Path]:
     """A-E against drum speed, one line per thrust, error bars = 1 standard error; R^2 likewise."""
     import matplotlib
@@ -676,19 +687,22 @@ def grid_figures(out: Path, st: CampaignState) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .analysis.paper002 import UNITS, _log_mm, _save
+    from .analysis.paper002 import UNITS, _save
 
     c = st.cfg
     done = [x for x in st.cells if x.status == "done" and x.result is not None]
-    colors = plt.cm.viridis(np.linspace(0, 0.9, max(len(c.thrusts_N), 1)))
+    colors = plt.cm.viridis(np.linspace(0, 0.85, max(len(c.thrusts_N), 1)))
+    nominal = _config_law(c) if c.sim else {}
     fig, axs = plt.subplots(2, 3, figsize=(15, 8.5), constrained_layout=True)
     names = ("A", "B", "C", "D", "E", "R2")
+    n_rows = len(c.thrusts_N)
     for ax, name in zip(axs.flat, names):
-        for color, p in zip(colors, c.thrusts_N):
+        for i, (color, p) in enumerate(zip(colors, c.thrusts_N)):
             cells = sorted((x for x in done if x.thrust_N == p), key=lambda x: x.v0_m_per_s)
             if not cells:
                 continue
-            v = np.array([x.v0_m_per_s * 1e3 for x in cells])
+            dodge = 10 ** (0.012 * (i - (n_rows - 1) / 2))  # side by side, so the error bars stay readable
+            v = np.array([x.v0_m_per_s * 1e3 for x in cells]) * dodge
             if name == "R2":
                 y = np.array([x.result.R2 for x in cells])
                 ax.plot(v, y, "o-", color=color, label=f"P = {p:g} N")
@@ -698,12 +712,24 @@ def grid_figures(out: Path, st: CampaignState) -> list[Path]:
             ok = np.array([x.result.coefficients[name].identified for x in cells])
             ax.errorbar(v, y, yerr=e, color=color, lw=1, capsize=3, marker=None, label=f"P = {p:g} N")
             ax.plot(v[ok], y[ok], "o", color=color)
-            ax.plot(v[~ok], y[~ok], "o", mfc="none", color=color)
+            ax.plot(v[~ok], y[~ok], "o", mfc="white", color=color)
+        if name in nominal:
+            ax.axhline(nominal[name], color="0.4", ls="--", lw=1, label="simulated rig's law (config)")
+        if name != "R2" and done:  # a cell with a huge error bar must not flatten the others
+            ys = np.array([x.result.coefficients[name].value for x in done]
+                          + ([nominal[name]] if name in nominal else []))
+            ses = np.array([x.result.coefficients[name].se or 0.0 for x in done])
+            pad = 2.5 * float(np.median(ses)) + 0.05 * float(np.ptp(ys)) + 1e-12
+            ax.set_ylim(ys.min() - pad, ys.max() + pad)
         ax.set_xscale("log")
-        if done:
-            vs = [x.v0_m_per_s * 1e3 for x in done]
-            ax.set_xlim(min(vs) / 1.2, max(vs) * 1.2)
-        _log_mm(ax)
+        speeds = sorted(c.speeds_m_per_s)
+        ax.set_xlim(speeds[0] * 1e3 / 1.25, speeds[-1] * 1e3 * 1.25)
+        from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator
+
+        ax.xaxis.set_major_locator(FixedLocator([v * 1e3 for v in speeds]))
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("drum speed v0 [mm/s] (log scale)")
         unit = "" if name == "R2" or UNITS[name] == "-" else f" [{UNITS[name]}]"
         ax.set_ylabel(("R²" if name == "R2" else name) + unit)

@@ -12,8 +12,6 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import InputError
-
 
 def _default(o):
     import numpy as np
@@ -26,10 +24,11 @@ def _default(o):
 
 
 def cmd_drum_mu(args: argparse.Namespace) -> int:
-    from .analysis.paper002 import analyse_drum_mu, figures
+    from .analysis.paper002 import GUARD_S, V_MIN, analyse_drum_mu, figures
     from .io.interchange import atomic_path
 
-    res, series = analyse_drum_mu(args.data, rig=args.rig, v_min=args.v_min, guard_s=args.guard, mu1=args.mu1,
+    res, series = analyse_drum_mu(args.data, rig=args.rig, v_min=V_MIN if args.v_min is None else args.v_min,
+                                  guard_s=GUARD_S if args.guard is None else args.guard, mu1=args.mu1,
                                   t_from=args.t_from, t_to=args.t_to)
     if args.report:
         rep = Path(args.report)
@@ -42,7 +41,8 @@ def cmd_drum_mu(args: argparse.Namespace) -> int:
         sys.stdout.write(json.dumps(out, indent=2, default=_default) + "\n")
     else:
         f = res.fit
-        print(f"law (3) on {f.n} samples (|v_wz| {f.v_range_m_per_s[0] * 1e3:.1f}-{f.v_range_m_per_s[1] * 1e3:.1f} mm/s), "
+        lo, hi = f.v_range_m_per_s
+        print(f"law (3) on {f.n} samples (|v_wz| {lo * 1e3:.1f}-{hi * 1e3:.1f} mm/s), "
               f"P = {res.thrust_N['mean']:.2f} N:")
         for k, c in f.coefficients.items():
             flag = "" if c.identified else "   (not identified: se > 25 %)"
@@ -54,17 +54,13 @@ def cmd_drum_mu(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction, analyse: argparse._SubParsersAction) -> None:
     """Add this paper's commands: under ``daq analyse`` (analyse) or at the top level (sub)."""
-    from .analysis.paper002 import GUARD_S, V_MIN
-
     p = analyse.add_parser("drum-mu", help="paper 002: mu(t) by eq. (2), law (3) A-E fitted (drum-pendulum)")
     p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS of the drum-pendulum rig")
     p.add_argument("--rig", help="rig id or config TOML (default: the config stored in the recording)")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.add_argument("--report", help="folder for mu_t.png, mu_v.png, residuals.png and drum-mu.json")
-    p.add_argument("--v-min", type=float, default=V_MIN,
-                   help=f"slowest sliding speed fitted [m/s] (default {V_MIN:g}; see docs/campaign.md)")
-    p.add_argument("--guard", type=float, default=GUARD_S,
-                   help=f"samples this close [s] to a slower one are left out (default {GUARD_S:g})")
+    p.add_argument("--v-min", type=float, help="slowest sliding speed fitted [m/s] (default 0.003; docs/campaign.md)")
+    p.add_argument("--guard", type=float, help="samples this close [s] to a slower one are left out (default 0.015)")
     p.add_argument("--mu1", type=float, default=0.0,
                    help="bearing friction coefficient mu1 of eq. (2) (default 0: the seed model has none)")
     p.add_argument("--from", dest="t_from", type=float, help="analyse from this time [s]")

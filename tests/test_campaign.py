@@ -181,3 +181,22 @@ def test_resume_refuses_another_grid(tmp_path, capsys):
     assert main(["campaign", "drum", "--sim", "--out", str(out), "--speeds", "0.012,0.02"]) == 2
     err = capsys.readouterr().err
     assert "--speeds" in err and "another --out" in err
+
+
+def test_real_hardware_asks_the_operator_for_each_thrust(monkeypatch, capsys):
+    """Without --sim the thrust is set by hand: the campaign asks and waits; no operator -> exit 2 path."""
+    import io
+
+    from daq.campaign import _confirm_factory
+    from daq.errors import InputError
+
+    said: list[str] = []
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n"))
+    _confirm_factory(False, said.append)(35.67)
+    assert "P = 35.67 N" in said[-1] and "press Enter" in said[-1]
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    with pytest.raises(InputError) as e:
+        _confirm_factory(False, said.append)(35.67)
+    assert e.value.field == "confirmation" and "--yes" in e.value.message
+    _confirm_factory(True, said.append)(42.8)  # --yes: says it, does not read
+    assert "confirmed in advance" in said[-1]

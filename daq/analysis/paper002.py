@@ -12,26 +12,30 @@ Why this module: the paper identifies its friction model in two steps, and so do
    gauge A, phi' = vel/R from the induction velocity gauge D, phi'' = accel/R from the piezo
    accelerometer C (both tangential at the friction radius R), N from strain gauge B (the
    instantaneous thrust, not the nominal P: the drum is out of round). Nothing is
-   differentiated except the drum speed (a slow programme, 100 Hz zero-order hold; see
-   ``drum_surface_speed``). Only when a file lacks vel/accel are they taken as centred
-   Savitzky-Golay derivatives of phi, and the result says so.
+   differentiated: vel and accel get a zero-phase cubic smoothing over +-5 ms, the drum
+   speed has its 100 Hz zero-order hold undone (``drum_surface_speed``). Only when a file
+   lacks vel/accel are they taken as centred Savitzky-Golay derivatives of phi, and the
+   result says so.
 2. Law (3) fitted by nonlinear least squares in v = |v_wz|:
        mu(v) = A [1 - exp(-B v)] exp(-C v) + D v + E,
    evaluated with the shared physics law ``daq.physics.friction.mu_drum`` (sgn regularised
-   over the rig's eps = 0.2 mm/s, far below the samples used). Start: variable projection
-   (A, D, E are linear given B, C: a log grid over B, C with linear least squares), then all
-   five together (scipy least_squares). Standard errors from the Jacobian, inflated by the
-   residuals' integrated autocorrelation time (samples 1 ms apart are not independent).
+   over the rig's eps = 0.2 mm/s, far below the samples used), by variable projection: A, D,
+   E are linear given B, C, so a log grid over (B, C) and then scipy least_squares over
+   (log B, log C) with A, D, E solved at every step. Standard errors from the five-parameter
+   Jacobian, inflated by the residuals' integrated autocorrelation time (samples 1 ms apart
+   are not independent).
 
 Sample selection (the SPEC's hint, measured, see docs/campaign.md): mu(t) is not a function
 of v where the contact sticks or reverses (|v_wz| small: static friction is whatever holds
 the pendulum), and any smoothing or differentiation smears the acceleration jump at each
-stick-slip transition into the neighbouring samples. We use samples with |v_wz| >= v_min
-(default 1 mm/s = 5 x the velocity gauge noise) and not within ``guard_s`` (default 15 ms)
-of a sample below it. Measured on simulated stick-slip (stick-time effect), the accelerometer
-route's error is flat up to the transition, while phi'' from a +-5 ms Savitzky-Golay second
-derivative of phi is biased there by ~10x its far-field error over the filter's half-width;
-``differentiation_check`` reports that comparison on every recording (data only, no truth).
+stick-slip transition into the neighbouring samples. Measured on simulated stick-slip, phi''
+from a +-5 ms Savitzky-Golay second derivative of phi is 6-12x noisier than the accelerometer
+everywhere, and twice as noisy and biased within 5 ms of a transition; the gauges smoothed
++-5 ms are biased only within 5 ms. We fit samples with |v_wz| >= v_min (default 3 mm/s:
+below it the law is so steep that the gauges' remaining noise pushes the fit along the A-B
+valley, measured) that are not within ``guard_s`` (default 15 ms) of a slower sample.
+``differentiation_check`` reports the differentiated-vs-gauge comparison on every recording
+(data only, no truth).
 
 One cell's run (``cell_ramp``): the paper records the pendulum's friction-induced vibration at a
 constant drum speed v0 for each (P, v0). A hold alone visits only a band of v (one point
@@ -69,8 +73,8 @@ GUARD_S = 0.015  # [s] around every such sample
 GAUGE_HALF_S = 0.005  # [s] half-width of the zero-phase cubic smoothing of the vel and accel gauges
 SG_HALF_S = 0.005  # [s] half-width of the Savitzky-Golay derivatives of phi (fallback and check)
 DRUM_SMOOTH_S = 0.05  # [s] half-width of the local quadratic through the drum speed updates
-REL_SE_IDENTIFIED = 0.25
-LOG_BOUNDS = ((0.1, 1e5), (0.01, 1e5))  # [s/m] search ranges of B and C (log scale)  # a coefficient with se/|value| above this is reported as not identified
+REL_SE_IDENTIFIED = 0.25  # a coefficient with se/|value| above this is reported as not identified
+LOG_BOUNDS = ((0.1, 1e5), (0.01, 1e5))  # [s/m] search ranges of B and C (log scale)
 
 # one cell's programme (times before --time-scale); see cell_ramp
 LEAD_IN_S = 2.0
@@ -86,9 +90,10 @@ def cell_ramp(v0: float, *, hold_s: float = HOLD_S, sweep_s: float = SWEEP_S, ba
               time_scale: float = 1.0, max_accel: float = 0.2, max_speed: float = 0.2) -> Ramp:
     """The drum-speed programme of one cell (P, v0): lead-in, hold at v0, sweep v0 -> v_hi -> v_lo -> v0.
 
-    ``time_scale`` multiplies every duration (a compressed run), but no linear segment is made
-    steeper than 3/4 of the drive's acceleration limit (the regulator then follows it). The sweep's share: 30 % up (linear), 55 %
-    down (exponential towards 0, ending at v_lo: equal time per decade of v), 15 % back to v0.
+    ``time_scale`` multiplies every duration (a compressed run), but no segment is made steeper
+    than 3/4 of the drive's acceleration limit (the regulator then follows it). The sweep's
+    share: 30 % up (linear), 55 % down (exponential towards 0, ending at v_lo: equal time per
+    decade of v), 15 % back to v0.
     """
     lo, hi = float(band[0]), max(float(band[1]), 2.0 * v0)
     hi = min(hi, max_speed)
@@ -222,10 +227,11 @@ def mu_series(rec: Recording, cfg: RigConfig, source: str, *, v_min: float = V_M
            "drum": f"drum_speed x R (gauge E; zero-order hold undone, local quadratic +-{DRUM_SMOOTH_S:g} s)"}
     vel = ch.get("vel")
     acc = ch.get("accel")
-    kin["phi_dot"] = f"vel / R (induction velocity gauge D, cubic smoothing +-{GAUGE_HALF_S * 1e3:g} ms)" if vel is not None else \
-        f"d phi/dt (Savitzky-Golay +-{SG_HALF_S * 1e3:g} ms; no vel channel)"
-    kin["phi_ddot"] = f"accel / R (piezo accelerometer C, cubic smoothing +-{GAUGE_HALF_S * 1e3:g} ms)" if acc is not None else \
-        f"d2 phi/dt2 (Savitzky-Golay +-{SG_HALF_S * 1e3:g} ms; no accel channel)"
+    smooth = f"cubic smoothing +-{GAUGE_HALF_S * 1e3:g} ms"
+    kin["phi_dot"] = (f"vel / R (induction velocity gauge D, {smooth})" if vel is not None else
+                      f"d phi/dt (Savitzky-Golay +-{SG_HALF_S * 1e3:g} ms; no vel channel)")
+    kin["phi_ddot"] = (f"accel / R (piezo accelerometer C, {smooth})" if acc is not None else
+                       f"d2 phi/dt2 (Savitzky-Golay +-{SG_HALF_S * 1e3:g} ms; no accel channel)")
     vel = sg(vel, rate, GAUGE_HALF_S) if vel is not None else vel_d
     acc = sg(acc, rate, GAUGE_HALF_S) if acc is not None else acc_d
     mu, N, v = _mu_from(model, phi, vel, acc, thrust, v_drive)
@@ -520,7 +526,8 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     ax.set_ylim(lo - pad, hi + pad)
     ax.set_ylabel("μ [-]")
     ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(f"{name}: friction coefficient μ(t) by paper 002 eq. (2) from φ, φ̇ (gauge D), φ̈ (accelerometer C)")
+    ax.set_title(f"{name}: friction coefficient μ(t) by paper 002 eq. (2) "
+                 "from φ, φ̇ (gauge D), φ̈ (accelerometer C)")
     vmin = float(res.selection["v_min_m_per_s"])
     axs[1].plot(s.t, s.v * 1e3, lw=0.4, color="C1", label="v_wz")
     axs[1].axhline(vmin * 1e3, color="k", lw=0.7, ls=":", label=f"±v_min = {vmin * 1e3:g} mm/s")
