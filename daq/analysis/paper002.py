@@ -580,7 +580,8 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     ax[0].set_xlabel("sliding speed v_wz [mm/s] (log scale)")
     ax[0].set_ylabel("μ − law (3) [-]")
     ax[0].set_title(f"residuals vs v (rms {res.fit.rms:.2g}, R² = {res.fit.R2:.4f})", fontsize=10)
-    ax[0].legend(fontsize=8, loc="upper right", markerscale=4)
+    ax[0].legend([Line2D([], [], ls="", marker=".", color="C0"), Line2D([], [], marker="o", ms=3, color="C3")],
+                 ["samples", "bin medians"], fontsize=8, loc="upper right")
     ax[1].plot(s.t[u][::step], r[::step], ".", ms=1.2, alpha=0.3, color="C2")
     ax[1].axhline(0, color="k", lw=0.8)
     ax[1].set_xlabel("t [s]")
