@@ -36,6 +36,7 @@ import subprocess
 import sys
 import threading
 import time
+import zlib
 from pathlib import Path
 from typing import Any, Callable, Literal
 
@@ -345,7 +346,8 @@ class DaemonRow:
         self.log_path = logs / f"daemon-{tag}-{stamp}.log"
         cmd = [sys.executable, "-m", "daq.cli", "daemon", "--rig", str(rig_toml), "--sim",
                "--data-dir", str(out / "recordings"), "--control", "tcp://127.0.0.1:0", "--bus", "tcp://127.0.0.1:0",
-               "--workdir", str(out / "dev" / f"{tag}-{stamp}-{os.getpid()}")]
+               "--workdir", str(out / "dev" / f"{tag}-{stamp}-{os.getpid()}"),
+               "--seed", str(zlib.crc32(tag.encode()) & 0x7FFFFFFF)]  # each row's instruments: their own noise
         for e in effects:
             cmd += ["--effect", e]
         # output to a file, not a pipe: a daemon whose campaign was killed must not die of a broken pipe

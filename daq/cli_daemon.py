@@ -35,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
                    help="hidden effect of the simulated rig (repeatable; --sim only)")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated physics speed vs wall clock (--sim)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated instruments' noise (--sim)")
     p.add_argument("--data-dir", default="data", help="where recordings go (default: ./data)")
     p.add_argument("--control", default=DEFAULT_CONTROL, help=f"control socket (default {DEFAULT_CONTROL})")
     p.add_argument("--keys", help="CURVE key directory (server.key_secret, operators/, observers/)")
@@ -110,6 +111,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     except (ValidationError, ValueError) as exc:
         raise InputError(args.keys or args.control, "--control", str(exc).splitlines()[0]) from None
     daemon = Daemon(DaemonCfg(rig=args.rig, sim=args.sim, sim_effects=args.effect, sim_time_scale=args.time_scale,
+                              sim_seed=args.seed,
                               data_dir=Path(args.data_dir), bus_endpoint=args.bus,
                               workdir=Path(args.workdir) if args.workdir else None))
     done = daemon.install_signal_handlers()  # before start: a SIGTERM while starting still ramps down
