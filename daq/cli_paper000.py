@@ -50,7 +50,7 @@ def _write_json(path: Path, obj) -> None:
 def cmd_belt_law(args: argparse.Namespace) -> int:
     from .analysis.paper000 import LAW, belt_law
 
-    if args.damping is not None and not args.damping >= 0:
+    if args.damping is not None and not args.damping >= 0:  # also refuses nan
         raise InputError("--damping", "d", "must be >= 0")
     if args.windows < 2:
         raise InputError("--windows", "windows", "must be >= 2")
@@ -99,10 +99,11 @@ def cmd_poincare(args: argparse.Namespace) -> int:
         raise InputError("--kmax", "kmax", "must be in 1..64")
     run = _runs([args.data], args.rig_config, None)[0]
     m = _mass(args, [run])
+    if args.skip is not None and args.skip >= 0.9 * (run.t[-1] - run.t[0]):
+        raise InputError("--skip", "skip", f"{args.skip:g} s leaves (almost) nothing of the "
+                                           f"{run.t[-1] - run.t[0]:.3g} s record")
     a = poincare(run, 0 if m is None else m, skip_s=args.skip, kmax=args.kmax)
     res = a.result
-    if args.skip is not None and args.skip >= run.t[-1] - run.t[0]:
-        raise InputError("--skip", "skip", f"{args.skip:g} s leaves nothing of the {run.t[-1] - run.t[0]:.3g} s record")
     if args.report:
         from .analysis.paper000_figures import poincare_figure
 

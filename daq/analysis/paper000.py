@@ -814,7 +814,7 @@ def fit_static(t_s: np.ndarray, delta: np.ndarray, f_s: np.ndarray, q0: float) -
 
 class Estimate(BaseModel):
     value: float
-    std: float
+    std: float | None  # None: not determined by the data (e.g. alpha_drop when no kept point lies on the drop)
 
 
 class RecordingSummary(BaseModel):
@@ -833,7 +833,7 @@ class Episode(BaseModel):
     recording: int
     mass: int  # 1-based
     t_break_s: float
-    t_s_s: float  # stick time [s] (nan if the stick began before the record)
+    t_s_s: float | None  # stick time [s] (None if the stick began before the record)
     delta_N_per_s: float  # load rate at the break-away [N/s]
     delta_mean_N_per_s: float  # mean load rate over the stick [N/s]
     f_s: float
@@ -1015,12 +1015,12 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
             continue
         t_break = float(run.t[w.j0] + (slip[0] - 0.5) / (run.rate * fine))
         t_stick0 = run.t[w.stick.start] - 0.5 / run.rate
-        t_s = float("nan") if w.stick.open_start else t_break - t_stick0
+        t_s = None if w.stick.open_start else t_break - t_stick0
         episodes.append(Episode(recording=w.run, mass=w.mass + 1, t_break_s=t_break, t_s_s=t_s,
                                 delta_N_per_s=_load_rate(run, w, states[max(slip[0] - 1, 0)], t_break),
                                 delta_mean_N_per_s=w.delta_mean, f_s=float(f_s), f_s_std=float(sd)))
     q0 = runs[0].mech.q0_N_per_s
-    use = [e for e in episodes if np.isfinite(e.t_s_s) and e.t_s_s > 0 and np.isfinite(e.delta_N_per_s)]
+    use = [e for e in episodes if e.t_s_s is not None and e.t_s_s > 0 and np.isfinite(e.delta_N_per_s)]
     static = None
     if len(use) >= 5:
         static = fit_static(np.array([e.t_s_s for e in use]), np.array([e.delta_N_per_s for e in use]),
@@ -1030,6 +1030,10 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
         if len(cond) < 4:
             warnings.append(f"only {len(cond)} distinct (stick time, force rate) conditions: the static law's "
                             "4 parameters are not all determined (vary belt speed and spring stiffness)")
+        if any(r.n > 1 for r in runs):
+            warnings.append("static law from a chain of masses: measured unreliable on simulated chains (a stick "
+                            "time the position data see can contain micro-slips that restart the stick clock; "
+                            "docs/analyses-000.md); identify it from one-mass records")
     else:
         warnings.append(f"{len(use)} complete stick episodes: too few for the static law")
     w_max = max(s.w_max for s in summaries)
@@ -1046,7 +1050,8 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
                    "x_unit_m": mech.x_unit, "v_unit_m_per_s": mech.v_unit, "config": mech.config_source},
         law={k_: Estimate(value=float(v), std=float(s)) for k_, v, s in zip(law.names, law.values, law.std)},
         law_rms_noise_units=law.rms,
-        equation_error={k_: Estimate(value=float(v), std=float(s)) for k_, v, s in zip(ee.names, ee.values, ee.std)},
+        equation_error={k_: Estimate(value=float(v), std=float(s) if s > 0 else None)
+                        for k_, v, s in zip(ee.names, ee.values, ee.std)},
         equation_error_rms=ee.rms,
         static=({k_: Estimate(value=float(v), std=float(s)) for k_, v, s in zip(static.names, static.values, static.std)}
                 if static else None),
@@ -1104,7 +1109,7 @@ class PoincareResult(BaseModel):
     skip_s: float
     points_total: int
     points_steady: int
-    classification: str  # "period-1", "period-k", "irregular", "too few crossings"
+    classification: str  # "period-k", "irregular", "too few crossings", "no oscillation (steady sliding or rest)"
     period: int | None  # k of period-k
     period_s: float | None  # duration of one period of the section sequence [s]
     distance_by_k: dict[str, float]  # k -> 90th percentile of |P_{n+k} - P_n| (normalised)
@@ -1205,7 +1210,10 @@ def poincare(run: BeltRun, mass: int = 0, skip_s: float | None = None, kmax: int
         dist[str(k)] = float(np.quantile(d, 0.9))
         if period is None and dist[str(k)] < tol:
             period = k
-    if P.shape[0] < 6:
+    if hi - lo < 8.0 * sig_v:
+        cls = "no oscillation (steady sliding or rest)"
+        period = None
+    elif P.shape[0] < 6:
         cls = "too few crossings"
         period = None
     elif period is None:

@@ -115,7 +115,7 @@ def belt_static_figure(res: BeltLawResult, path: str | Path) -> None:
     rates at low belt speed), so each panel shows the levels corrected to the other
     variable's median through the fitted law (partial-residual plot), raw levels faint.
     """
-    eps = [e for e in res.episodes if np.isfinite(e.t_s_s) and e.t_s_s > 0 and np.isfinite(e.delta_N_per_s)]
+    eps = [e for e in res.episodes if e.t_s_s is not None and e.t_s_s > 0 and np.isfinite(e.delta_N_per_s)]
     fig, axes = plt.subplots(1, 2, figsize=(14, 5.6), constrained_layout=True)
     if not eps:
         for ax in axes:
