@@ -34,6 +34,7 @@ SLIP = 0.0
 STICK = 1.0
 EVENT_TOL = 1e-10
 MAX_SOFT_EVENTS = 200  # per output interval; beyond this, kinks are stepped over (chattering guard)
+MAX_HARD_EVENTS = 10_000  # per output interval; beyond this the run stops with an error instead of hanging
 
 
 class P(IntEnum):
@@ -258,6 +259,9 @@ def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
             need, rate = _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region)
             hs[H.FS_BREAK, i] = _static_limit(t - hs[H.STICK_T0, i], rate, p, e)
             hs[H.MODE, i] = SLIP
+            # a stuck mass rides the belt; rounding (a belt that changed speed) can leave its velocity
+            # 1e-13 m/s on the wrong side, read at once as a zero crossing of w: a spurious fresh contact
+            s[n + i] = vb
             # friction needed > 0 means the springs pull back: the mass lags the belt, w > 0
             hs[H.SLIP_DIR, i] = 1.0 if need > 0.0 else -1.0
 
@@ -295,6 +299,7 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     for k in range(n_out):
         t_target = t0 + k * n_sub * dt
         n_soft = 0
+        n_hard = 0
         while t_target - t > 1e-12 * dt:
             soft = n_soft < MAX_SOFT_EVENTS
             _mark_regions(t, s, hs, p, e, rt, rv, ds, fric, region)
@@ -321,6 +326,9 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
                 if hard:
                     _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region)
                     n_events += 1
+                    n_hard += 1
+                    if n_hard > MAX_HARD_EVENTS:  # a contact flipping without time advancing
+                        raise RuntimeError("belt-ndof: contact chatters (over 10000 stick/slip switches in one output interval)")
                 else:
                     n_soft += 1
             else:
