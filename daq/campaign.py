@@ -717,12 +717,18 @@ def grid_figures(out: Path, st: CampaignState) -> list[Path]:
             ax.plot(v[~ok], y[~ok], "o", mfc="white", color=color)
         if name in nominal:
             ax.axhline(nominal[name], color="0.4", ls="--", lw=1, label="simulated rig's law (config)")
-        if name != "R2" and done:  # a cell with a huge error bar must not flatten the others
-            ys = np.array([x.result.coefficients[name].value for x in done]
+        if name != "R2" and done:  # a cell with a huge error bar, or not identified, must not flatten the others
+            scaled = [x for x in done if x.result.coefficients[name].identified] or done
+            ys = np.array([x.result.coefficients[name].value for x in scaled]
                           + ([nominal[name]] if name in nominal else []))
-            ses = np.array([x.result.coefficients[name].se or 0.0 for x in done])
+            ses = np.array([x.result.coefficients[name].se or 0.0 for x in scaled])
             pad = 2.5 * float(np.median(ses)) + 0.05 * float(np.ptp(ys)) + 1e-12
-            ax.set_ylim(ys.min() - pad, ys.max() + pad)
+            lo_y, hi_y = ys.min() - pad, ys.max() + pad
+            ax.set_ylim(lo_y, hi_y)
+            off = sum(1 for x in done if not lo_y <= x.result.coefficients[name].value <= hi_y)
+            if off:
+                ax.text(0.98, 0.97, f"{off} cell(s) off scale (not identified)", transform=ax.transAxes,
+                        fontsize=8, color="0.3", ha="right", va="top")
         ax.set_xscale("log")
         speeds = sorted(c.speeds_m_per_s)
         ax.set_xlim(speeds[0] * 1e3 / 1.25, speeds[-1] * 1e3 * 1.25)
