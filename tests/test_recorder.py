@@ -545,3 +545,20 @@ def test_recover_changes_only_the_flag_and_checksum(tmp_path):
     assert after[11] == 0
     with h5py.File(path, "r") as f:
         assert f["x"][()].tolist() == [1.0, 2.0]
+
+
+def test_a_derived_stream_at_the_same_rate_never_becomes_the_time_base(tmp_path):
+    """The estimator publishes one estimate per laser sample with jittered host stamps; if it won the time
+    base by a hair, every measured channel would be interpolated at jittered instants (seen in the demo)."""
+    out = tmp_path / "base.h5"
+    laser = StreamMeta(stream="laser_serial", channels=("x1",), units=("m",), rate_hz=1000.0)
+    est = StreamMeta(stream="estimator", channels=("F_est",), units=("N",), rate_hz=1000.0)
+    w = RunWriter(WriterCfg(flush_s=1.0)).open(out, None, "", {}, start_host_time=100.0)
+    tl = 100.0 + np.arange(2000) / 1000.0
+    te = 100.0003 + np.arange(2001) / 1000.2 + np.random.default_rng(0).uniform(0, 3e-4, 2001)  # a hair faster
+    w.append(make_block(laser, 0, tl, tl[:, None] * 2.0, device_t=tl - 100.0))
+    w.append(make_block(est, 0, te, np.ones((te.size, 1))))
+    w.close()
+    rec = read_h5(out)
+    assert rec.meta["time_base"] == "laser_serial"
+    np.testing.assert_array_equal(rec.channels["x1"], tl * 2.0)  # measured samples untouched, not interpolated
