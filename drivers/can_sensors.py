@@ -7,10 +7,14 @@ a simulated peer from a real one.
 
 Faults and how they show up:
 
-* error frame received, or the transport raises (``can.CanError``/``OSError``):
-  ``bus_errors`` +1, a ``bus_error`` event, then the base machinery drops and
-  reopens the bus with back-off (``disconnected``, ``connected``, and a ``gap``
-  event when samples flow again);
+* error frame received: ``bus_errors`` +1 and a ``bus_error`` event. A real bus
+  sees an occasional error frame (a bit error another node flagged) and goes on,
+  so does the driver; only ``error_frame_limit`` of them within
+  ``error_frame_window_s`` (default 10 in 1 s: the controller heading for
+  error-passive / bus-off) count as a lost bus;
+* a lost bus, or the transport raises (``can.CanError``/``OSError``): the base
+  machinery drops and reopens the bus with back-off (``disconnected``,
+  ``connected``, and a ``gap`` event when samples flow again);
 * a sequence gap within one message: ``lost_frames`` += the number missed, one
   ``lost_frames`` event per message and read with the count (gaps longer than
   256 frames are resolved with the device time, see ``_missed``);
@@ -21,6 +25,7 @@ Faults and how they show up:
 
 from __future__ import annotations
 
+import collections
 import functools
 import time
 from dataclasses import dataclass
@@ -128,6 +133,9 @@ class CanSensorCfg(BaseModel):
     bus: CanBusCfg
     select: SensorSelection
     silence_timeout_s: float = Field(0.5, gt=0, description="no listened frame this long = bus lost")
+    error_frame_limit: int = Field(10, ge=1, description="error frames within error_frame_window_s that make "
+                                                          "the driver reopen the bus (fewer are counted only)")
+    error_frame_window_s: float = Field(1.0, gt=0)
     max_batch: int = Field(4096, gt=0, description="frames decoded per read() at most")
     host_time: Literal["receive", "decode"] = Field(
         "receive", description="Sample.host_time: the interface's receive timestamp (kernel/hardware, "
@@ -184,6 +192,7 @@ class CanSensorDriver(SampleSource):
         self._pending: BaseException | None = None
         self._armed = False  # silence detection starts with the first listened frame after connecting
         self._last_frame_host = 0.0
+        self._error_frames: collections.deque[float] = collections.deque()  # host times within the window
 
     # --- transport
     def _connect(self) -> None:
@@ -234,8 +243,16 @@ class CanSensorDriver(SampleSource):
             wait = 0.0
             if msg.is_error_frame:
                 self._bus_error(f"error frame, data {bytes(msg.data).hex() or '-'}")
-                err = can.CanOperationError("error frame received")
-                break
+                now = time.monotonic()
+                self._error_frames.append(now)
+                while self._error_frames and now - self._error_frames[0] > self.cfg.error_frame_window_s:
+                    self._error_frames.popleft()
+                if len(self._error_frames) >= self.cfg.error_frame_limit:
+                    self._error_frames.clear()
+                    err = can.CanOperationError(f"{self.cfg.error_frame_limit} error frames within "
+                                                f"{self.cfg.error_frame_window_s:g} s")
+                    break
+                continue
             self._frame(msg, out, lost, wall_off)
         for fid, n in lost.items():
             self.emit("lost_frames", self._tracks[fid].msg.name, count=n)

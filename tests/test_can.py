@@ -42,7 +42,7 @@ class Bench:
 
     def __init__(self, cfg: RigConfig, *, channels: dict[str, ChannelCfg] | None = None,
                  faults: Faults | None = None, clock: DeviceClock | None = None, silence_timeout_s: float = 0.5,
-                 attach: bool = True) -> None:
+                 attach: bool = True, error_frame_limit: int = 10) -> None:
         """attach=True: the simulator sends inside rig.step(); False: call sim.start() and rig.start()."""
         self.bus = CanBusCfg(interface="virtual", channel=f"test-can-{uuid.uuid4().hex}")
         self.rig = RealtimeRig(cfg)
@@ -51,7 +51,7 @@ class Bench:
         self.rig.subscribe(self.ticks.append)
         self.drv = CanSensorDriver(CanSensorCfg(
             name="can-test", bus=self.bus, select=SensorSelection(rig=cfg.rig), silence_timeout_s=silence_timeout_s,
-            backoff=BackoffCfg(initial_s=0.02, max_s=0.1)))
+            error_frame_limit=error_frame_limit, backoff=BackoffCfg(initial_s=0.02, max_s=0.1)))
         self.drv.open()
         self.sim = SimCanSensors(self.rig, self.bus, channels=channels, faults=faults, clock=clock)
         if attach:
@@ -251,8 +251,22 @@ def test_undecodable_and_foreign_frames(brake_cfg, bench):
 # --- faults that cut the stream
 
 
-def test_error_frame_reconnects_and_reports_the_gap(brake_cfg, bench):
+def test_isolated_error_frames_are_counted_and_the_stream_goes_on(brake_cfg, bench):
+    """A real bus sees an occasional error frame and goes on; reopening it for each would cut the stream."""
     b = bench(brake_cfg)
+    b.step(10)
+    for _ in range(3):
+        b.sim.bus_error()
+        b.step(5)
+    b.pump(lambda: len(b.samples) >= 500, "samples around the error frames")
+    c = b.drv.counters
+    assert c.bus_errors == 3 and b.kinds().count("bus_error") == 3
+    assert b.drv.state == DriverState.CONNECTED and c.reconnects == 0 and "disconnected" not in b.kinds()
+    assert len(b.samples) == 500 and c.lost_frames == 0  # 25 ticks x 20 samples: nothing lost around them
+
+
+def test_error_frame_burst_reconnects_and_reports_the_gap(brake_cfg, bench):
+    b = bench(brake_cfg, error_frame_limit=1)  # the threshold (10 in 1 s by default) reached at once
     b.step(10)
     b.sim.bus_error()
     b.step(10)  # behind the error frame: dropped with the bus
