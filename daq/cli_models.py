@@ -18,11 +18,12 @@ def _say(msg: str) -> None:
     print(f"  {msg}", file=sys.stderr, flush=True)
 
 
-def _json_out(obj: dict) -> None:
-    sys.stdout.write(json.dumps(obj, indent=2, default=_default) + "\n")
+def print_json(obj: dict) -> None:
+    """``--json``: one object on stdout, numpy values as plain numbers (shared by the analysis commands)."""
+    sys.stdout.write(json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
-def _default(o):
+def json_default(o):
     import numpy as np
 
     if isinstance(o, np.ndarray):
@@ -111,7 +112,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
            "parameters": {k: {"value": f.values[k], "std": f.fit.std.get(k)} for k in model.free_names()},
            "seconds": time.perf_counter() - t0, "converged": f.fit.success, "message": f.fit.message}
     if args.json:
-        _json_out(res)
+        print_json(res)
     else:
         for k, d in res["parameters"].items():
             print(f"  {k:42s} {d['value']:.6g} +- {d['std'] if d['std'] is not None else float('nan'):.2g}")
@@ -146,13 +147,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         rep.mkdir(parents=True, exist_ok=True)
         compare_figure(s, f, {**res, "_plot": plot}, rep / "compare.png")
         spectrogram_figure(s, {**res, "_plot": plot}, rep / "spectrogram.png")
-        (rep / "compare.json").write_text(json.dumps(res, indent=2, default=_default))
+        (rep / "compare.json").write_text(json.dumps(res, indent=2, default=json_default))
         save_model(f.model, rep / "fitted.toml")
         res["report"] = str(rep)
     if not args.no_history:
         _append_history(Path(args.history), res)
     if args.json:
-        _json_out(res)
+        print_json(res)
     else:
         u = res["error_unit"]
         print(f"error {res['error']:.4g} {u} (noise floor {res['noise_floor']:.4g}, held-out {res['error_held_out']:.4g})"
@@ -179,10 +180,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
         diagnose_figure(s, d, rep / "diagnose.png")
-        (rep / "diagnose.json").write_text(json.dumps(res, indent=2, default=_default))
+        (rep / "diagnose.json").write_text(json.dumps(res, indent=2, default=json_default))
         res["report"] = str(rep)
     if args.json:
-        _json_out(res)
+        print_json(res)
     else:
         print(d.summary)
         print(f"  {'effect':24s} {'reduction':>9s} {'z':>6s}  params")

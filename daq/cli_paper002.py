@@ -8,19 +8,9 @@ JSON object with --json and write figures with the same JSON to --report / --out
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
 
-
-def _default(o):
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return str(o)
+from .cli_models import print_json
 
 
 def cmd_drum_mu(args: argparse.Namespace) -> int:
@@ -38,7 +28,7 @@ def cmd_drum_mu(args: argparse.Namespace) -> int:
             tmp.write_text(res.model_dump_json(indent=2))
     out = res.model_dump(mode="json")
     if args.json:
-        sys.stdout.write(json.dumps(out, indent=2, default=_default) + "\n")
+        print_json(out)
     else:
         f = res.fit
         lo, hi = f.v_range_m_per_s

@@ -281,6 +281,22 @@ def load_rig(name_or_path: str | Path) -> RigConfig:
     return parse_rig(parse_toml(read_text(path), str(path)), str(path))
 
 
+def config_for_recording(stored: object, source: str, override: str | Path | None, rig: str,
+                         what: str) -> RigConfig:
+    """The rig config an analysis of a recording uses: ``override`` (id or TOML), else the config the
+    recording carries (its own geometry and parameters: ``stored`` TOML text), else the built-in one of
+    ``rig``. A config of another rig is one InputError: ``what`` needs a ``rig`` recording."""
+    if override:
+        cfg = load_rig(override)
+    elif isinstance(stored, str):
+        cfg = parse_rig(parse_toml(stored, f"{source} (rig_config)"), f"{source} (rig_config)")
+    else:
+        cfg = load_rig(rig)
+    if cfg.rig != rig:
+        raise InputError(source, "rig", f"{what} a {rig} recording, this is from {cfg.rig}")
+    return cfg
+
+
 def config_text(cfg: RigConfig) -> str:
     """The config as TOML text, stored with every recording so a run can be reproduced."""
     import tomli_w

@@ -58,8 +58,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 from scipy.signal import savgol_filter
 
-from ..config import BeltRig, RigConfig, load_rig, parse_rig
-from ..errors import InputError, parse_toml
+from ..config import BeltRig, config_for_recording
+from ..errors import InputError
 from ..io.interchange import Recording
 from ..physics import beltndof
 from ..physics.effects import TAIL
@@ -138,15 +138,8 @@ def noise_sigma(x: np.ndarray) -> float:
 
 def _config_for(rec: Recording, source: str, rig: str | None) -> BeltRig:
     """The rig config: --rig (id or TOML path), else the one stored in the recording, else the built-in."""
-    if rig:
-        cfg: RigConfig = load_rig(rig)
-    elif isinstance(rec.meta.get("rig_config"), str):
-        cfg = parse_rig(parse_toml(str(rec.meta["rig_config"]), f"{source} (rig_config)"), f"{source} (rig_config)")
-    else:
-        cfg = load_rig(RIG)
-    if cfg.rig != RIG:
-        raise InputError(source, "rig", f"paper 000 analyses need a {RIG} recording, this is {cfg.rig}")
-    return cfg  # type: ignore[return-value]
+    return config_for_recording(rec.meta.get("rig_config"), source, rig, RIG,  # type: ignore[return-value]
+                                "paper 000 analyses need")
 
 
 def prepare(rec: Recording, source: str, rig: str | None = None, damping: float | None = None,

@@ -57,8 +57,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
-from ..config import RigConfig, load_rig, parse_rig
-from ..errors import InputError, parse_toml
+from ..config import RigConfig, config_for_recording
+from ..errors import InputError
 from ..io.interchange import Recording
 from ..physics.friction import mu_drum
 from ..ramps import Ramp, Segment
@@ -157,15 +157,7 @@ def drum_surface_speed(t: np.ndarray, omega: np.ndarray, R: float, half_s: float
 
 def rig_config_of(rec: Recording, source: str, rig: str | None) -> RigConfig:
     """The rig config a recording carries (its own geometry and thrust), else ``rig`` (id or TOML)."""
-    if rig:
-        cfg = load_rig(rig)
-    elif isinstance(rec.meta.get("rig_config"), str):
-        cfg = parse_rig(parse_toml(str(rec.meta["rig_config"]), f"{source} (rig_config)"), f"{source} (rig_config)")
-    else:
-        cfg = load_rig(RIG)
-    if cfg.rig != RIG:
-        raise InputError(source, "rig", f"drum-mu needs a {RIG} recording, this is from {cfg.rig}")
-    return cfg
+    return config_for_recording(rec.meta.get("rig_config"), source, rig, RIG, "drum-mu needs")
 
 
 @dataclass

@@ -196,7 +196,7 @@ class Problem:
 
     def fit(self, values: dict[str, float], free: list[str], bounds: dict[str, tuple[float, float]],
             windows: np.ndarray, velocities: np.ndarray | None = None, max_iter: int = 25,
-            length: int | None = None, broyden: bool | None = None) -> FitResult:
+            length: int | None = None) -> FitResult:
         """Least squares over the free parameters and every window's start velocities.
 
         Levenberg-Marquardt on the block structure of multiple shooting: the start
@@ -204,14 +204,14 @@ class Problem:
         equations are solved through the Schur complement over the global parameters
         (cost linear in the number of windows). The Jacobian is by finite differences
         (one simulation of all windows per free parameter and per velocity slot); with
-        ``broyden`` it is then carried along accepted steps by per-window Broyden
+        ``BROYDEN`` it is then carried along accepted steps by per-window Broyden
         rank-one updates (each window's residuals see only the globals and that window's
         velocities, so the update keeps the block structure), and re-computed by finite
         differences whenever a step fails or convergence is to be declared. Simulations
         are the whole cost: this cuts them per iteration from k + n_vel + 1 to about 1.
         The reported uncertainties always come from a finite-difference Jacobian.
         """
-        broyden = BROYDEN if broyden is None else broyden
+        broyden = BROYDEN
         values = dict(values)
         k, nw, nv = len(free), windows.size, self.n_vel
         lo = np.array([bounds[n][0] for n in free], dtype=float)
