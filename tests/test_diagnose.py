@@ -82,11 +82,15 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
 
 
 @pytest.mark.parametrize("rig, hidden, rate", [("drum-pendulum", "bearing-friction", 1000.0),
-                                               ("brake-2dof", "temperature", 100.0)])
+                                               ("brake-2dof", "temperature", 100.0),
+                                               ("brake-2dof", "stick-time", 100.0)])
 def test_hidden_effect_is_ranked_first_and_removes_most_of_the_excess(rig, hidden, rate):
     cfg = load_rig(rig)
-    # drum 14 s / 42 windows: recovered 0.95 and 0.97 on seeds 21 and 5 (20 s / 60 windows: 0.98), 30 % cheaper
-    duration, windows = (14.0, 42) if rig == "drum-pendulum" else (20.0, 60)
+    # drum 14 s / 42 windows: recovered 0.95 and 0.97 on seeds 21 and 5 (20 s / 60 windows: 0.98), 30 % cheaper.
+    # stick-time at 100 Hz is the weakest trace of the table: the seed run (45 s, 90 windows), where it is
+    # found on seeds 3, 5, 7, 11, 21 with reductions 0.61-0.89 (0.83 on this seed)
+    duration, windows = {"drum-pendulum": (14.0, 42), "stick-time": (45.0, 90)}.get(
+        rig if rig == "drum-pendulum" else hidden, (20.0, 60))
     rec = simulate(cfg, effects=[parse_effect(hidden)], rate=rate, seed=21, duration=duration)
     s = Session(rec, "sim", cfg, max_windows=windows)
     d = diagnose(s, seed_model(rig))

@@ -26,7 +26,7 @@ def _rms(x: np.ndarray) -> float:
 
 def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Sample indices and residuals (model - measured) of every window (fit and held-out), start excluded."""
-    shot = fitted.problem.shoot(fitted.values, session.win.select(None), fitted.velocities())
+    shot = fitted.problem.shoot(fitted.values, session.win.select(None), fitted.start_values())
     return shot.index[:, 1:].ravel(), {k: (shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel() for k in shot.pred}
 
 
@@ -82,7 +82,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
         "noise_floor": floor[primary],
         "error_held_out": fitted.rms(primary, "held"),
         "error_definition": "rms of model - measured over short windows simulated from the data's state at their "
-                            "start (multiple shooting; start velocities fitted), after fitting the free parameters",
+                            "start (multiple shooting; start velocities (and at slow sampling positions) fitted), after fitting the free parameters",
         "parameters": {k: {"value": fitted.values[k], "std": fitted.fit.std.get(k)} for k in fitted.model.free_names()},
         "by_signal": {k: {"error": _rms(res[k]), "unit": m.units[k], "noise_floor": floor[k],
                           "noise_sigma": m.sigma[k]} for k in m.outputs},

@@ -30,6 +30,7 @@ REQUIRED = {
     "belt-ndof": ("x1", "vb"),
 }
 OPTIONAL = ("vb_set", "temp")
+FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
 
 
 def sg(x: np.ndarray, rate: float, half_s: float, deriv: int = 0, degree: int = 3) -> np.ndarray:
@@ -87,6 +88,19 @@ class RigData(ABC):
 
     rig: str
     velocity_slots: tuple[int, ...]  # state entries estimated per window (free in multiple shooting)
+    position_slots: tuple[int, ...] = ()  # measured state entries, also free per window at slow sampling
+
+    def start_slots(self, rate: float) -> tuple[int, ...]:
+        """State entries each window's fit estimates: the velocities, and below FREE_POSITIONS_BELOW_HZ the positions.
+
+        Why positions too at slow sampling: a window's start position is one raw sample (a local
+        smoother at 100 Hz would bend through the nearest slip); its noise then offsets the whole
+        window and the error floor of a perfect model rises to ~sqrt(2) sigma (7.1 um for 5 um noise
+        on brake-2dof), burying weak effects (stick-time at seed strength: 2 % above that floor).
+        Estimated from the window's samples, start sample included as a measurement, the floor is
+        ~sigma (4.8 um) and stick-time at 100 Hz is found (docs/recovery-table.md).
+        """
+        return self.velocity_slots + (self.position_slots if rate < FREE_POSITIONS_BELOW_HZ else ())
 
     def __init__(self, cfg: RigConfig) -> None:
         self.cfg = cfg
@@ -187,6 +201,7 @@ def stick_tail(v_rel: np.ndarray, load_rate: np.ndarray, rate: float, cfg: RigCo
 class BrakeData(RigData):
     rig = "brake-2dof"
     velocity_slots = (1, 3)
+    position_slots = (0, 2)
 
     def _prepare(self, rec, t, rate, source):
         x1 = np.asarray(rec.channels["x1"], dtype=float)
@@ -236,6 +251,7 @@ class DrumData(RigData):
 
     rig = "drum-pendulum"
     velocity_slots = (1,)
+    position_slots = (0,)
 
     def _prepare(self, rec, t, rate, source):
         R = self.cfg.mechanics.R_m

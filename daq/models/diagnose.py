@@ -84,7 +84,7 @@ def _fit_candidate(name: str) -> tuple[str, dict[str, float], np.ndarray, np.nda
     base: Fitted = _STATE["base"]  # type: ignore[assignment]
     model: Model = _STATE["model"]  # type: ignore[assignment]
     f = s.fit(add_effect(model, name), warm=base)
-    return name, f.values, f.fit.velocities, f.held.velocities, f.fit.std, f.ms_held, f.ms_fit
+    return name, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit
 
 
 def fit_candidates(session: Session, model: Model, base: Fitted, names: list[str], workers: int | None = None,

@@ -34,7 +34,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     unit = m.units[primary]
     pr = fitted.problem
     wins = _pick_windows(session)
-    vel_all = fitted.velocities()
+    vel_all = fitted.start_values()
     shot = pr.shoot(fitted.values, wins, vel_all[wins])
     fig = plt.figure(figsize=(15, 10), constrained_layout=True)
     gs = fig.add_gridspec(3, 3)
@@ -158,14 +158,14 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     if hw.size and diag.candidates:
         wsel = np.argmax(base.ms_held[primary])
         w = hw[wsel:wsel + 1]
-        sb = base.problem.shoot(base.values, w, base.held.velocities[wsel:wsel + 1])
+        sb = base.problem.shoot(base.values, w, base.held.start_values[wsel:wsel + 1])
         t = m.t[sb.index[0]]
         ax.plot(t, sb.meas[primary][0], "k.", ms=3, label="measured (held out)")
         ax.plot(t, sb.pred[primary][0], "C0-", label=f"model: {base.model.describe()}")
         best = diag.candidates[0]
         if best.fitted is not None:
             bf = best.fitted
-            vel = bf.problem.fit_velocities(bf.values, w, max_iter=10).velocities
+            vel = bf.problem.fit_starts(bf.values, w, max_iter=25).start_values
             sc = bf.problem.shoot(bf.values, w, vel)
             ax.plot(t, sc.pred[primary][0], "C2-", label=f"+ {best.effect}")
         ax.set_xlabel("t [s]")

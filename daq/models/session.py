@@ -88,7 +88,7 @@ class Fitted:
     model: Model  # with fitted values (and their std)
     values: dict[str, float]
     fit: FitResult  # fit windows
-    held: FitResult  # held-out windows (velocities only)
+    held: FitResult  # held-out windows (start values only)
     problem: Problem
     ms_held: dict[str, np.ndarray]  # per held-out window, mean-square error per output
     ms_fit: dict[str, np.ndarray]
@@ -98,13 +98,13 @@ class Fitted:
             self.ms_fit[output] if which == "fit" else np.concatenate([self.ms_fit[output], self.ms_held[output]]))
         return float(math.sqrt(np.mean(ms))) if ms.size else float("nan")
 
-    def velocities(self) -> np.ndarray:
-        """Start velocities of every window of the session (fit windows' from the fit, held-out from theirs)."""
+    def start_values(self) -> np.ndarray:
+        """Start values (the free start-state entries) of every window of the session (fit windows' from the fit, held-out from theirs)."""
         vel = np.zeros((self.fit.windows.size + (self.held.windows.size if self.held is not self.fit else 0),
-                        self.fit.velocities.shape[1]))
-        vel[self.fit.windows] = self.fit.velocities
+                        self.fit.start_values.shape[1]))
+        vel[self.fit.windows] = self.fit.start_values
         if self.held is not self.fit:
-            vel[self.held.windows] = self.held.velocities
+            vel[self.held.windows] = self.held.start_values
         return vel
 
 
@@ -148,33 +148,33 @@ class Session:
             new = self._new_keys(warm.model, model)
             values = dict(pr.builder.base_values)
             values.update({k: v for k, v in warm.values.items() if k in values and k not in new})
-            starts.append((dict(values), warm.fit.velocities))  # the new effect at its start values
+            starts.append((dict(values), warm.fit.start_values))  # the new effect at its start values
             off = switched_off(model, new)
             if any(values[k] != v for k, v in off.items()):
                 values.update(off)
-                starts.append((values, warm.fit.velocities))  # ... and switched off
+                starts.append((values, warm.fit.start_values))  # ... and switched off
         fw, hw = self.win.select(False), self.win.select(True)
         half = max(MIN_CONTINUATION, self.win.length // 2)
         best = None
         for values, vel in starts:
             # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper
-            pre = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter // 2, length=half)
+            pre = pr.fit(values, free, bounds, fw, start_values=vel, max_iter=max_iter // 2, length=half)
             if best is None or pre.cost < best.cost:
                 best = pre
-        values, vel = best.values, best.velocities
-        res = pr.fit(values, free, bounds, fw, velocities=vel, max_iter=max_iter)
-        # A joint LM step can throw one window's start velocities into a poor local minimum that the
-        # global cost hides; re-fit every fit window's velocities from the data (parameters fixed, as
+        values, vel = best.values, best.start_values
+        res = pr.fit(values, free, bounds, fw, start_values=vel, max_iter=max_iter)
+        # A joint LM step can throw one window's start values into a poor local minimum that the
+        # global cost hides; re-fit every fit window's start values from the data (parameters fixed, as
         # for held-out windows) and keep, per window, the better of the two.
-        again = pr.fit_velocities(res.values, fw, max_iter=10)
-        e_joint = self.weighted(pr.window_errors(res.values, fw, res.velocities))
-        e_again = self.weighted(pr.window_errors(res.values, fw, again.velocities))
-        res.velocities = np.where((e_again < e_joint)[:, None], again.velocities, res.velocities)
-        held = pr.fit_velocities(res.values, hw, max_iter=10) if hw.size else res
+        again = pr.fit_starts(res.values, fw, max_iter=25)
+        e_joint = self.weighted(pr.window_errors(res.values, fw, res.start_values))
+        e_again = self.weighted(pr.window_errors(res.values, fw, again.start_values))
+        res.start_values = np.where((e_again < e_joint)[:, None], again.start_values, res.start_values)
+        held = pr.fit_starts(res.values, hw, max_iter=25) if hw.size else res
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
         return Fitted(fitted_model, res.values, res, held, pr,
-                      pr.window_errors(res.values, hw, held.velocities) if hw.size else {},
-                      pr.window_errors(res.values, fw, res.velocities))
+                      pr.window_errors(res.values, hw, held.start_values) if hw.size else {},
+                      pr.window_errors(res.values, fw, res.start_values))
 
     def weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
         """Per window: the mean-square error of all outputs, each in units of its noise."""
@@ -198,7 +198,7 @@ class Session:
         s0 = self.rd.start_state(sim, self.m, int(self.win.starts[w0]))
         fitted_w = list(fitted.fit.windows)
         if w0 in fitted_w:
-            s0[list(self.rd.velocity_slots)] = fitted.fit.velocities[fitted_w.index(w0)]
+            s0[pr.slots] = fitted.fit.start_values[fitted_w.index(w0)]
         i0 = int(self.win.starts[w0])
         n = self.m.n - i0
         ch = sim.advance(s0, float(pr.rt[i0]), pr.h, pr.n_sub, n, pr.rt, pr.rv)
@@ -209,7 +209,7 @@ class Session:
 
         The fitted model's forward run becomes a synthetic recording with the measured
         noise levels (same drive, temperature and other columns); the same windows
-        procedure then scores the same model on it, start velocities fitted as always.
+        procedure then scores the same model on it, start values fitted as always.
         """
         idx, pred, states, aux = self.free_run(fitted)
         rng = np.random.default_rng(seed)
@@ -222,8 +222,8 @@ class Session:
         s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
         pr = s.problem(fitted.model)
         allw = s.win.select(None)
-        vel = pr.fit_velocities(fitted.values, allw, max_iter=10)
-        ms = pr.window_errors(fitted.values, allw, vel.velocities)
+        vel = pr.fit_starts(fitted.values, allw, max_iter=25)
+        ms = pr.window_errors(fitted.values, allw, vel.start_values)
         # A window whose start-velocity fit ran away (seen once in 90 windows on a 600 s record) is
         # not what a perfect model shows: windows more than 5x the median rms are left out.
         wsum = self.weighted(ms)

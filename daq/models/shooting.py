@@ -5,10 +5,11 @@ positions is biased exactly at stick-slip transitions. Here the model is
 integrated from each window's start and compared with the *measured* signals,
 so transitions are judged by what the model predicts, not by a derivative.
 Windows are short (about one stick-slip cycle and a half) so phase drift cannot
-build up; each window's initial velocities are free (they are not measured),
-and the model's free parameters are shared by all windows. scipy's
+build up; each window's initial velocities are free (they are not measured; at
+slow sampling the start positions too, see RigData.start_slots: the "start
+values"), and the model's free parameters are shared by all windows. scipy's
 ``least_squares`` gets the Jacobian's block sparsity, so one Jacobian costs
-(free parameters + velocities per window) evaluations, however many windows.
+(free parameters + start values per window) evaluations, however many windows.
 """
 
 from __future__ import annotations
@@ -24,6 +25,11 @@ from .data import Measured, RigData
 WINDOW_CYCLES = 1.5  # window length in stick-slip periods
 BROYDEN = True  # carry the Jacobian by rank-one updates between finite-difference refreshes (see Problem.fit)
 MIN_WINDOW_SAMPLES = 12
+# Initial Levenberg-Marquardt damping of a window's own fit (fit_starts). Why high: the start comes
+# from the data and is close; a near-Gauss-Newton first step through a break-away can jump to another
+# basin that is better than the start but far from the best (seen on one 100 Hz window: 865 um after
+# 30 trials from damping 1e-2, 4.7 um from 100). Damping falls 5x per accepted step.
+START_DAMPING = 100.0
 
 
 @dataclass
@@ -104,7 +110,7 @@ class FitResult:
     values: dict[str, float]  # all parameter values (fixed ones included)
     free: list[str]
     std: dict[str, float]
-    velocities: np.ndarray  # (n_windows_fitted, n_vel)
+    start_values: np.ndarray  # (n_windows_fitted, n_start)
     windows: np.ndarray  # window indices fitted
     cost: float
     nfev: int
@@ -146,7 +152,10 @@ class Problem:
         self.outputs = list(self.m.outputs)
         self.idx = self.win.starts[:, None] + np.arange(self.win.length)[None, :]
         self.meas = {k: x[self.idx] for k, x in self.m.outputs.items()}
-        self.n_vel = len(self.rd.velocity_slots)
+        self.slots = list(self.rd.start_slots(rate))
+        self.n_start = len(self.slots)
+        # with free start positions the start sample is a measurement like the others (it anchors them)
+        self.r0 = 0 if len(self.slots) > len(self.rd.velocity_slots) else 1
 
     # ------------------------------------------------------------------ simulation
 
@@ -159,17 +168,17 @@ class Problem:
     def start_states(self, sim, windows: np.ndarray) -> np.ndarray:
         return np.array([self.rd.start_state(sim, self.m, int(self.win.starts[w])) for w in windows])
 
-    def default_velocities(self, windows: np.ndarray) -> np.ndarray:
+    def default_starts(self, windows: np.ndarray) -> np.ndarray:
         sim = self.sim(self.builder.base_values)
         s0 = self.start_states(sim, windows)
-        return s0[:, list(self.rd.velocity_slots)].copy()
+        return s0[:, self.slots].copy()
 
-    def shoot(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray | None = None,
+    def shoot(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None = None,
               length: int | None = None) -> Shot:
         sim = self.sim(values)
         s0 = self.start_states(sim, windows)
-        if velocities is not None:
-            s0[:, list(self.rd.velocity_slots)] = velocities
+        if start_values is not None:
+            s0[:, self.slots] = start_values
         L = length or self.win.length
         states = np.empty((windows.size, L, s0.shape[1]))
         aux = None
@@ -184,40 +193,40 @@ class Problem:
         meas = {k: v[windows, :L] for k, v in self.meas.items()}
         return Shot(windows, pred, meas, states, aux, self.idx[windows, :L])
 
-    def residuals(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray | None,
+    def residuals(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None,
                   length: int | None = None) -> np.ndarray:
-        """(pred - meas)/sigma for every output, window and sample after the start, flattened per window."""
-        shot = self.shoot(values, windows, velocities, length)
-        parts = [(shot.pred[k][:, 1:] - shot.meas[k][:, 1:]) / self.m.sigma[k] for k in self.outputs]
-        r = np.stack(parts, axis=1).reshape(windows.size, -1)  # (n_win, n_out*(L-1))
+        """(pred - meas)/sigma for every output, window and sample (from the start sample when positions are free), flattened."""
+        shot = self.shoot(values, windows, start_values, length)
+        parts = [(shot.pred[k][:, self.r0:] - shot.meas[k][:, self.r0:]) / self.m.sigma[k] for k in self.outputs]
+        r = np.stack(parts, axis=1).reshape(windows.size, -1)  # (n_win, n_out*(L-r0))
         return np.nan_to_num(r.ravel(), nan=1e6, posinf=1e6, neginf=-1e6)
 
     # ------------------------------------------------------------------ fitting
 
     def fit(self, values: dict[str, float], free: list[str], bounds: dict[str, tuple[float, float]],
-            windows: np.ndarray, velocities: np.ndarray | None = None, max_iter: int = 25,
+            windows: np.ndarray, start_values: np.ndarray | None = None, max_iter: int = 25,
             length: int | None = None) -> FitResult:
-        """Least squares over the free parameters and every window's start velocities.
+        """Least squares over the free parameters and every window's start values.
 
         Levenberg-Marquardt on the block structure of multiple shooting: the start
-        velocities of one window touch only that window's residuals, so the normal
+        values of one window touch only that window's residuals, so the normal
         equations are solved through the Schur complement over the global parameters
         (cost linear in the number of windows). The Jacobian is by finite differences
-        (one simulation of all windows per free parameter and per velocity slot); with
+        (one simulation of all windows per free parameter and per start slot); with
         ``BROYDEN`` it is then carried along accepted steps by per-window Broyden
         rank-one updates (each window's residuals see only the globals and that window's
-        velocities, so the update keeps the block structure), and re-computed by finite
+        start values, so the update keeps the block structure), and re-computed by finite
         differences whenever a step fails or convergence is to be declared. Simulations
-        are the whole cost: this cuts them per iteration from k + n_vel + 1 to about 1.
+        are the whole cost: this cuts them per iteration from k + n_start + 1 to about 1.
         The reported uncertainties always come from a finite-difference Jacobian.
         """
         broyden = BROYDEN
         values = dict(values)
-        k, nw, nv = len(free), windows.size, self.n_vel
+        k, nw, nv = len(free), windows.size, self.n_start
         lo = np.array([bounds[n][0] for n in free], dtype=float)
         hi = np.array([bounds[n][1] for n in free], dtype=float)
         theta = np.clip(np.array([values[n] for n in free], dtype=float), lo, hi)
-        V = (self.default_velocities(windows) if velocities is None else np.array(velocities, dtype=float))
+        V = (self.default_starts(windows) if start_values is None else np.array(start_values, dtype=float))
         nfev = 0
 
         def resid(th: np.ndarray, vel: np.ndarray) -> np.ndarray:
@@ -310,7 +319,7 @@ class Problem:
 
     @staticmethod
     def _stds(Jg, Jv, cost: float, m: int, k: int, nv: int, nw: int, free: list[str]) -> dict[str, float]:
-        """1-sigma of the free parameters: inverse Schur complement of J^T J over the nuisance velocities."""
+        """1-sigma of the free parameters: inverse Schur complement of J^T J over the nuisance start values."""
         if k == 0 or Jg is None:
             return {}
         A = np.einsum("wri,wrj->ij", Jg, Jg)
@@ -321,13 +330,86 @@ class Problem:
         cov = np.linalg.pinv(S) * s2
         return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
 
-    def fit_velocities(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10) -> FitResult:
-        """Only the start velocities (the model fixed): how well can this model follow these windows."""
-        return self.fit(values, [], {}, windows, max_iter=max_iter)
+    def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10,
+                       start_values: np.ndarray | None = None, length: int | None = None) -> FitResult:
+        """Only the start unknowns (the model fixed): how well can this model follow these windows.
+
+        Why a Levenberg-Marquardt per window and not one over all of them: with the model fixed the
+        windows are independent, and a shared damping and a shared accept/reject let one window
+        that needs small steps (near a break-away) stall while the summed cost still falls. Each
+        window here keeps its own damping and stops on its own; the simulations stay batched
+        (one call per trial over the windows still iterating).
+        """
+        nw, nv = windows.size, self.n_start
+        V = self.default_starts(windows) if start_values is None else np.array(start_values, dtype=float)
+        nfev = 0
+
+        def resid(vel: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            nonlocal nfev
+            nfev += 1
+            return self.residuals(values, windows[rows], vel, length).reshape(rows.size, -1)
+
+        vscale = np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv)
+
+        def jac(vel: np.ndarray, rows: np.ndarray, r: np.ndarray) -> np.ndarray:
+            j = np.empty(r.shape + (nv,))
+            for q in range(nv):
+                vp = vel.copy()
+                vp[:, q] += 1e-4 * vscale[q]
+                j[..., q] = (resid(vp, rows) - r) / (1e-4 * vscale[q])
+            return j
+
+        allr = np.arange(nw)
+        R = resid(V, allr) if nw else np.zeros((0, 0))
+        cost = 0.5 * np.sum(R * R, axis=1)
+        J = jac(V, allr, R) if nw else np.zeros((0, 0, nv))
+        lam = np.full(nw, START_DAMPING)
+        active = np.ones(nw, bool)
+        fails = np.zeros(nw, int)
+        for _ in range(max_iter * 3):  # a failed trial costs one simulation, a success 1 + nv
+            rows = np.flatnonzero(active)
+            if not rows.size:
+                break
+            Jr, Rr = J[rows], R[rows]
+            C = np.einsum("wri,wrj->wij", Jr, Jr)
+            g = np.einsum("wri,wr->wi", Jr, Rr)
+            D = np.einsum("wii->wi", C) + 1e-12
+            # converged where even the undamped (Gauss-Newton) step promises next to nothing; a small
+            # actual decrease is no test while the damping is still high
+            gn = 0.5 * np.einsum("wi,wi->w", g, np.linalg.solve(C + 1e-9 * D[:, :, None] * np.eye(nv)[None],
+                                                                  g[..., None])[..., 0])
+            conv = gn <= np.maximum(1e-6 * cost[rows], 1e-4)
+            active[rows[conv]] = False
+            keep = ~conv
+            rows, Jr, Rr, C, g, D = rows[keep], Jr[keep], Rr[keep], C[keep], g[keep], D[keep]
+            if not rows.size:
+                break
+            Cd = C + lam[rows, None, None] * (D[:, :, None] * np.eye(nv)[None])
+            dV = -np.linalg.solve(Cd, g[..., None])[..., 0]
+            Vt = V[rows] + dV
+            Rt = resid(Vt, rows)
+            ct = 0.5 * np.sum(Rt * Rt, axis=1)
+            ok = np.isfinite(ct) & (ct < cost[rows])
+            rel = np.where(ok, (cost[rows] - ct) / np.maximum(cost[rows], 1e-300), 0.0)
+            acc = rows[ok]
+            V[acc], R[acc], cost[acc] = Vt[ok], Rt[ok], ct[ok]
+            lam[acc] = np.maximum(lam[acc] / 5.0, 1e-7)
+            lam[rows[~ok]] *= 4.0
+            fails[acc] = 0
+            fails[rows[~ok]] += 1
+            done = ok & (rel < 1e-9)
+            done |= ~ok & ((fails[rows] >= 12) | (lam[rows] > 1e10))
+            active[rows[done]] = False
+            redo = rows[ok & ~done]
+            if redo.size:
+                J[redo] = jac(V[redo], redo, R[redo])
+        # summary over windows, as the joint fit reports it
+        message = "converged" if not active.any() else "iteration limit"
+        return FitResult(dict(values), [], {}, V, windows, float(np.sum(cost)), nfev, not active.any(), message)
 
     # ------------------------------------------------------------------ scores
 
-    def window_errors(self, values: dict[str, float], windows: np.ndarray, velocities: np.ndarray) -> dict[str, np.ndarray]:
+    def window_errors(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray) -> dict[str, np.ndarray]:
         """Mean-square error per window and output (in the output's unit squared)."""
-        shot = self.shoot(values, windows, velocities)
+        shot = self.shoot(values, windows, start_values)
         return {k: np.mean((shot.pred[k][:, 1:] - shot.meas[k][:, 1:]) ** 2, axis=1) for k in self.outputs}
