@@ -79,28 +79,40 @@ def score(base: Fitted, cand: Fitted, effect: str, floor: float, session: Sessio
 _STATE: dict[str, object] = {}
 
 
-def _fit_candidate(name: str) -> tuple[str, dict[str, float], np.ndarray, np.ndarray, dict, dict, dict]:
+FLOOR = "(noise floor)"  # the pool's one task that is not a candidate
+
+
+def _fit_candidate(name: str) -> tuple:
     s: Session = _STATE["session"]  # type: ignore[assignment]
     base: Fitted = _STATE["base"]  # type: ignore[assignment]
     model: Model = _STATE["model"]  # type: ignore[assignment]
+    if name == FLOOR:
+        return name, s.noise_floor(base)
     f = s.fit(add_effect(model, name), warm=base)
     return name, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit
 
 
 def fit_candidates(session: Session, model: Model, base: Fitted, names: list[str], workers: int | None = None,
-                   on_done=None) -> dict[str, Fitted]:
+                   on_done=None, floors: dict | None = None) -> dict[str, Fitted]:
     """Refit the model once per candidate effect, from the model file's values and from the base fit.
 
     ``model`` is the model as written (its values are the cold start, what `model add` + refit
-    would use); ``base`` its fit (the warm start). In parallel processes if we can.
+    would use); ``base`` its fit (the warm start). In parallel processes if we can. Given a dict
+    ``floors``, the base fit's noise floor is computed too (filled in): in the pool it fills the gap
+    an odd number of candidates leaves on two cores.
     """
-    workers = workers or min(len(names), os.cpu_count() or 1)
+    workers = workers or min(len(names) + (floors is not None), os.cpu_count() or 1)
     out: dict[str, Fitted] = {}
     if workers > 1 and "fork" in mp.get_all_start_methods():
         _STATE.update(session=session, base=base, model=model)
+        tasks = ([FLOOR] if floors is not None else []) + list(names)
         try:
             with mp.get_context("fork").Pool(workers) as pool:
-                for name, values, vel, vel_held, std, ms_held, ms_fit in pool.imap_unordered(_fit_candidate, names):
+                for name, *rest in pool.imap_unordered(_fit_candidate, tasks):
+                    if name == FLOOR:
+                        floors.update(rest[0])  # type: ignore[union-attr]
+                        continue
+                    values, vel, vel_held, std, ms_held, ms_fit = rest
                     cand = add_effect(model, name)
                     free = cand.free_names()
                     fr = FitResult(values, free, std, vel, session.win.select(False), float("nan"), 0, True)
@@ -112,6 +124,8 @@ def fit_candidates(session: Session, model: Model, base: Fitted, names: list[str
         finally:
             _STATE.clear()
         return out
+    if floors is not None:
+        floors.update(session.noise_floor(base))
     for name in names:
         out[name] = session.fit(add_effect(model, name), warm=base)
         if on_done:
@@ -200,12 +214,14 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     if base is None:
         say(f"fitting the model ({len(model.free_names())} free parameters) on {len(session.win.select(False))} windows")
         base = session.fit(model)
-    floors = session.noise_floor(base)
-    floor = floors[session.primary]
     e0 = base.rms(session.primary)
-    say(f"model error {e0:.4g} {session.m.units[session.primary]} (noise floor {floor:.4g}); "
-        f"trying {len(names)} effects: {', '.join(names)}")
-    fits = fit_candidates(session, model, base, names, workers, on_done=lambda n: say(f"  refitted with {n}"))
+    say(f"model error {e0:.4g} {session.m.units[session.primary]}; noise floor and {len(names)} effects to try: "
+        f"{', '.join(names)}")
+    floors: dict[str, float] = {}
+    fits = fit_candidates(session, model, base, names, workers, on_done=lambda n: say(f"  refitted with {n}"),
+                          floors=floors)
+    floor = floors[session.primary]
+    say(f"noise floor {floor:.4g} {session.m.units[session.primary]}")
     cands = sorted((score(base, fits[n], n, floor, session) for n in names), key=lambda c: -c.score)
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
     best = cands[0] if cands else None

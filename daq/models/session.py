@@ -22,6 +22,7 @@ from .shooting import FitResult, Problem, Windows, make_windows
 from .spec import Model, drive_source, rig_config_for
 
 MIN_CONTINUATION = 8  # samples
+PROBE_ITER = 5  # iterations each start gets before the best one goes on
 
 
 def load_data(path: str | Path, rig: str | None) -> Recording:
@@ -155,12 +156,15 @@ class Session:
                 starts.append((values, warm.fit.start_values))  # ... and switched off
         fw, hw = self.win.select(False), self.win.select(True)
         half = max(MIN_CONTINUATION, self.win.length // 2)
-        best = None
-        for values, vel in starts:
-            # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper
-            pre = pr.fit(values, free, bounds, fw, start_values=vel, max_iter=max_iter // 2, length=half)
-            if best is None or pre.cost < best.cost:
-                best = pre
+        # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper;
+        # with several starts each gets PROBE_ITER iterations and only the best goes on (the others
+        # used to run their whole half-window budget: half of a candidate's simulations)
+        probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
+        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half)
+                    for values, vel in starts), key=lambda f: f.cost)
+        if probe < max_iter // 2:
+            best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
+                          max_iter=max_iter // 2 - probe, length=half)
         values, vel = best.values, best.start_values
         res = pr.fit(values, free, bounds, fw, start_values=vel, max_iter=max_iter)
         # A joint LM step can throw one window's start values into a poor local minimum that the
