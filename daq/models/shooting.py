@@ -105,6 +105,17 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
     return Windows(s, L, held)
 
 
+def start_jacobian(resid, V: np.ndarray, r: np.ndarray, vscale: np.ndarray) -> np.ndarray:
+    """Per window, d(residuals)/d(start values) by forward differences: one simulation per start slot."""
+    j = np.empty(r.shape + (V.shape[1],))
+    for q in range(V.shape[1]):
+        dv = 1e-4 * vscale[q]
+        vp = V.copy()
+        vp[:, q] += dv
+        j[..., q] = (resid(vp) - r) / dv
+    return j
+
+
 @dataclass
 class FitResult:
     values: dict[str, float]  # all parameter values (fixed ones included)
@@ -247,13 +258,7 @@ class Problem:
                 tp = th.copy()
                 tp[i] += hstep
                 jg[..., i] = (resid(tp, vel) - r) / hstep
-            jv = np.empty(r.shape + (nv,))
-            for j in range(nv):
-                dv = 1e-4 * vscale[j]
-                vp = vel.copy()
-                vp[:, j] += dv
-                jv[..., j] = (resid(th, vp) - r) / dv
-            return jg, jv
+            return jg, start_jacobian(lambda vp: resid(th, vp), vel, r, vscale)
 
         R = resid(theta, V)
         cost = 0.5 * float(np.sum(R * R))
@@ -330,8 +335,7 @@ class Problem:
         cov = np.linalg.pinv(S) * s2
         return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
 
-    def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10,
-                       start_values: np.ndarray | None = None, length: int | None = None) -> FitResult:
+    def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10) -> FitResult:
         """Only the start unknowns (the model fixed): how well can this model follow these windows.
 
         Why a Levenberg-Marquardt per window and not one over all of them: with the model fixed the
@@ -341,23 +345,18 @@ class Problem:
         (one call per trial over the windows still iterating).
         """
         nw, nv = windows.size, self.n_start
-        V = self.default_starts(windows) if start_values is None else np.array(start_values, dtype=float)
+        V = self.default_starts(windows)
         nfev = 0
 
         def resid(vel: np.ndarray, rows: np.ndarray) -> np.ndarray:
             nonlocal nfev
             nfev += 1
-            return self.residuals(values, windows[rows], vel, length).reshape(rows.size, -1)
+            return self.residuals(values, windows[rows], vel).reshape(rows.size, -1)
 
         vscale = np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv)
 
         def jac(vel: np.ndarray, rows: np.ndarray, r: np.ndarray) -> np.ndarray:
-            j = np.empty(r.shape + (nv,))
-            for q in range(nv):
-                vp = vel.copy()
-                vp[:, q] += 1e-4 * vscale[q]
-                j[..., q] = (resid(vp, rows) - r) / (1e-4 * vscale[q])
-            return j
+            return start_jacobian(lambda vp: resid(vp, rows), vel, r, vscale)
 
         allr = np.arange(nw)
         R = resid(V, allr) if nw else np.zeros((0, 0))
