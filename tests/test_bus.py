@@ -96,8 +96,8 @@ def test_slow_subscriber_loses_blocks_counted_exactly_and_never_stalls_publisher
     t0 = time.monotonic()
     for i in range(n):  # the slow subscriber reads nothing meanwhile: its queues fill up
         pub.publish(META, np.arange(1000.0), payload)
-        if i % 100 == 0:
-            time.sleep(0.001)  # a realistic publisher, not a tight loop
+        if i % 10 == 0:  # a realistic publisher, not a tight loop: <= 20 M values/s, 4x the bus bar;
+            time.sleep(0.001)  # every 100 blocks (200 M values/s) starved the fast reader on a busy 2-core host
     assert time.monotonic() - t0 < 20.0  # the publisher never waited for the stalled subscriber
     time.sleep(0.3)
     done.set()
