@@ -10,10 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
+import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from daq.physics.effects import CATALOG
+
 from .errors import InputError, parse_toml, read_text
-from .physics.effects import CATALOG
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
 
@@ -299,6 +301,5 @@ def config_for_recording(stored: object, source: str, override: str | Path | Non
 
 def config_text(cfg: RigConfig) -> str:
     """The config as TOML text, stored with every recording so a run can be reproduced."""
-    import tomli_w
 
     return tomli_w.dumps(cfg.model_dump(mode="json", exclude_none=True))

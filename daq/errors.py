@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
+
 
 class InputError(Exception):
     """Bad user input (config, ramp, CSV, model file, CLI argument).
@@ -18,7 +21,6 @@ class InputError(Exception):
 
 def read_text(path) -> str:
     """A user's input file as text; an unreadable file is an InputError naming it."""
-    from pathlib import Path
 
     try:
         return Path(path).read_text()
@@ -28,7 +30,6 @@ def read_text(path) -> str:
 
 def parse_toml(text: str, source: str) -> dict:
     """TOML text as a mapping; a syntax error is an InputError naming the file."""
-    import tomllib
 
     try:
         return tomllib.loads(text)

@@ -18,8 +18,17 @@ import numpy as np
 from cantools.database.can import Message, Signal
 
 from daq.config import ChannelCfg
-from drivers.can_sensors import (SEQ_MODULUS, SEQ_SIGNAL, TIME_MODULUS, TIME_SIGNAL, TIME_UNIT_S, CanBusCfg,
-                                 SensorSelection, value_signal, wall_minus_monotonic)
+from drivers.can_sensors import (
+    SEQ_MODULUS,
+    SEQ_SIGNAL,
+    TIME_MODULUS,
+    TIME_SIGNAL,
+    TIME_UNIT_S,
+    CanBusCfg,
+    SensorSelection,
+    value_signal,
+    wall_minus_monotonic,
+)
 
 from .instrument import DeviceClock, Faults, SimInstrument
 from .realtime import RealtimeRig, Tick

@@ -14,8 +14,20 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from drivers.motor_protocol import (ERR_CHECKSUM, ERR_LATCHED, ERR_LIMIT, ERR_STATE, ERR_SYNTAX, LineBuffer,
-                                    ProtocolError, Status, decode, encode, tag, untag)
+from drivers.motor_protocol import (
+    ERR_CHECKSUM,
+    ERR_LATCHED,
+    ERR_LIMIT,
+    ERR_STATE,
+    ERR_SYNTAX,
+    LineBuffer,
+    ProtocolError,
+    Status,
+    decode,
+    encode,
+    tag,
+    untag,
+)
 
 from .pty_port import PtyPort
 from .realtime import RealtimeRig

@@ -37,8 +37,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import zmq
+
 from daq.config import CanInstrument, RigConfig, StreamInstrument, load_rig, parse_rig
 from daq.errors import InputError
+from daq.sim.effectset import parse_effect
+
+from .hardware import SimulatedHardware
 
 STANDSTILL = 1e-3  # [m/s]
 
@@ -73,11 +78,8 @@ def cross_process_wiring(cfg: RigConfig) -> RigConfig:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    import zmq
 
-    from daq.sim.effectset import parse_effect
 
-    from .hardware import SimulatedHardware
 
     cfg = cross_process_wiring(load_rig(args.rig))
     effects = [parse_effect(x, "--effect") for x in args.effect]
@@ -244,7 +246,6 @@ class SimBenchProcess:
 
 def request(control: str, op: str, timeout_s: float = 5.0) -> dict[str, Any]:
     """One request to a bench's control socket (from any process: tests, the daemon's status)."""
-    import zmq
 
     ctx = zmq.Context.instance()
     s = ctx.socket(zmq.REQ)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from daq.acquisition import Acquisition, AcquisitionCfg
-from daq.bus import Subscriber
 from daq.config import load_rig, parse_rig
-from daq.stream import Block, BusEvent
+from daq.daemon.acquisition import Acquisition, AcquisitionCfg
+from daq.io.stream_format import Block, BusEvent
+from daq.streaming.bus import Subscriber
 from drivers.factory import build_drivers
 from sim_backends.hardware import SimulatedHardware
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import zmq
 
-from daq.bus import Publisher, Subscriber
-from daq.stream import Block, BusEvent, StreamMeta, decode_block, encode_block, make_block
+from daq.io.stream_format import Block, BusEvent, StreamMeta, decode_block, encode_block, make_block
+from daq.streaming.bus import Publisher, Subscriber
 
 META = StreamMeta(stream="can", channels=("x1", "phi"), units=("m", "rad"), rig="brake-2dof", rate_hz=1000.0)
 

@@ -23,8 +23,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from daq.campaign import _alive, _cmdline, load_state
-from daq.cli import main
+from daq.analysis.campaign import _alive, _cmdline, load_state
+from daq.cli.main import main
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUE = {"D": 1.5, "E": 0.09981645}
@@ -171,7 +171,7 @@ def test_bad_grid_and_state_exit_2(tmp_path, capsys):
 
 def test_resume_refuses_another_grid(tmp_path, capsys):
     """A stored campaign is resumed as it was: a different grid into the same --out is refused."""
-    from daq.campaign import CampaignCfg, new_state, save_state
+    from daq.analysis.campaign import CampaignCfg, new_state, save_state
 
     out = tmp_path / "c"
     out.mkdir()
@@ -187,7 +187,7 @@ def test_real_hardware_asks_the_operator_for_each_thrust(monkeypatch, capsys):
     """Without --sim the thrust is set by hand: the campaign asks and waits; no operator -> exit 2 path."""
     import io
 
-    from daq.campaign import _confirm_factory
+    from daq.analysis.campaign import _confirm_factory
     from daq.errors import InputError
 
     said: list[str] = []

@@ -18,8 +18,17 @@ from pydantic import ValidationError
 
 from daq.config import ChannelCfg, RigConfig, load_rig
 from drivers.base import BackoffCfg, DriverState, Sample
-from drivers.can_sensors import (SEQ_SIGNAL, TIME_SIGNAL, CanBusCfg, CanSensorCfg, CanSensorDriver, SensorSelection,
-                                 load_dbc, message_rig, value_signal)
+from drivers.can_sensors import (
+    SEQ_SIGNAL,
+    TIME_SIGNAL,
+    CanBusCfg,
+    CanSensorCfg,
+    CanSensorDriver,
+    SensorSelection,
+    load_dbc,
+    message_rig,
+    value_signal,
+)
 from sim_backends.can_sensors import SimCanSensors
 from sim_backends.instrument import DeviceClock, Faults
 from sim_backends.realtime import RealtimeRig, Tick

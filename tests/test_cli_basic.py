@@ -105,7 +105,7 @@ def test_sim_custom_rig_file_three_masses(tmp_path):
 
 def test_bench_sim_contract_keys():
     """The benchmark's JSON keys and its agreement with the solve_ivp baseline (short baseline here)."""
-    from daq.bench import bench_sim
+    from daq.bench.sim import bench_sim
 
     r = bench_sim(repeat=1, baseline_duration=1.0)
     assert r["realtime_factor"] > 0 and r["speedup_vs_solve_ivp"] > 0

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 import tomli_w
+from helpers import expect_error
 from pydantic import ValidationError
 
 from daq.config import CONFIG_DIR, BeltRig, BrakeRig, DrumRig, config_text, load_rig, parse_rig, rig_ids
 from daq.errors import InputError
-from helpers import expect_error
 
 RIGS = {"belt-ndof": BeltRig, "brake-2dof": BrakeRig, "drum-pendulum": DrumRig}
 

@@ -8,8 +8,16 @@ from pathlib import Path
 import pytest
 import zmq
 
-from daq.control import (FORBIDDEN, ControlCfg, ControlClient, ControlServer, Reply, Request, generate_keys,
-                         is_local_endpoint)
+from daq.daemon.control import (
+    FORBIDDEN,
+    ControlCfg,
+    ControlClient,
+    ControlServer,
+    Reply,
+    Request,
+    generate_keys,
+    is_local_endpoint,
+)
 
 pytestmark = pytest.mark.skipif(not zmq.has("curve"), reason="libzmq built without CURVE")
 

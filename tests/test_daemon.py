@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from daq.daemon import BenchProgress, run_sim_ramp
+from daq.daemon.service import BenchProgress, run_sim_ramp
 from daq.errors import InputError
 from daq.io.interchange import read_recording
 from daq.ramps import seed_ramp

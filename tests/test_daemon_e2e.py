@@ -24,7 +24,7 @@ import pytest
 import zmq
 
 from daq.config import load_rig
-from daq.control import FORBIDDEN, ControlClient, Reply
+from daq.daemon.control import FORBIDDEN, ControlClient, Reply
 from sim_backends.process import request as sim_request
 
 ROOT = Path(__file__).resolve().parent.parent

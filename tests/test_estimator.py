@@ -37,13 +37,13 @@ import time
 import numpy as np
 import pytest
 
-from daq.bus import Publisher, Subscriber
 from daq.estimation.core import EstimatorCfg, FrictionEstimator, estimate_arrays
 from daq.estimation.differentiate import noise_gain, sg_coefficients
 from daq.estimation.online import OnlineCfg, OnlineEstimator
 from daq.estimation.rigmodels import rig_model
+from daq.io.stream_format import Block, BusEvent, StreamMeta
 from daq.sim.run import simulate
-from daq.stream import Block, BusEvent, StreamMeta
+from daq.streaming.bus import Publisher, Subscriber
 
 # rig -> (bias rms tolerance, bias max tolerance) [N], the channel whose noise dominates, m_eff
 BIAS_TOL = {"brake-2dof": (0.003, 0.011), "drum-pendulum": (0.002, 0.005), "belt-ndof": (0.06, 0.20)}
@@ -273,7 +273,7 @@ def test_end_to_end_over_zeromq(brake_cfg, runs):
 
 def test_bench_estimator_reports_its_figures_beside_the_baseline():
     """A 1 s run of `daq bench estimator` (the figures themselves are the benchmark's job, not asserted)."""
-    from daq.bench_estimator import bench_estimator, format_estimator
+    from daq.bench.estimator import bench_estimator, format_estimator
 
     r = bench_estimator(1.0)
     for key in ("latency_p99_ms", "keeps_up", "baseline_latency_p99_ms", "samples_per_s", "latency_p50_ms"):

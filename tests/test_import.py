@@ -13,8 +13,8 @@ from nptdms import ChannelObject, GroupObject, RootObject, TdmsFile, TdmsWriter
 from daq.errors import InputError
 from daq.io.importer import export_csv, import_file, is_si, required_channels
 from daq.io.interchange import FORMAT_RUN, read_csv, read_recording
-from daq.recorder import RunWriter
-from daq.stream import StreamMeta, make_block
+from daq.io.runfile import RunWriter
+from daq.io.stream_format import StreamMeta, make_block
 
 N = 200
 COLS = ["x1", "phi", "vb", "vb_set", "temp", "extra"]

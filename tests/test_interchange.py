@@ -8,11 +8,19 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from helpers import expect_error, write
 
 from daq.errors import InputError
-from helpers import expect_error, write
-from daq.io.interchange import (Recording, atomic_path, read_csv, read_h5, read_recording, write_csv, write_h5,
-                                write_recording)
+from daq.io.interchange import (
+    Recording,
+    atomic_path,
+    read_csv,
+    read_h5,
+    read_recording,
+    write_csv,
+    write_h5,
+    write_recording,
+)
 
 N = 7
 

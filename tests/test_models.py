@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import expect_error, write
 
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.models.session import Session
-from daq.models.spec import add_effect, dumps, load_model, parse_model, remove_effect, save_model, seed_model
+from daq.models.spec import add_effect, dumps, load_model, remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
-
-from helpers import expect_error, write
-
 
 # ----------------------------------------------------------------------------- model files
 

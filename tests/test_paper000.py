@@ -211,7 +211,7 @@ def test_constructed_period_three_trajectory():
 
 
 def test_cli_end_to_end(tmp_path, capsys, seed_recs, poincare_recs):
-    from daq.cli import main
+    from daq.cli.main import main
     from daq.io.interchange import write_recording
 
     files = []
@@ -237,7 +237,7 @@ def test_cli_end_to_end(tmp_path, capsys, seed_recs, poincare_recs):
 
 
 def test_cli_bad_input(tmp_path, capsys):
-    from daq.cli import main
+    from daq.cli.main import main
 
     missing = tmp_path / "nope.h5"
     rep = tmp_path / "rep"

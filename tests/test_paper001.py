@@ -8,8 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from daq.analysis.paper001 import (BIAS_TOL, TransitionCfg, analyse_run, brake_params, detect_transitions,
-                                   friction_series, kappas)
+from daq.analysis.paper001 import (
+    BIAS_TOL,
+    TransitionCfg,
+    analyse_run,
+    brake_params,
+    detect_transitions,
+    friction_series,
+    kappas,
+)
 from daq.physics import brake2dof
 from tests.helpers import expect_error
 
@@ -261,7 +268,7 @@ def test_period_doubling_in_the_160s_run(brake_cfg):
 
 
 def test_cli_end_to_end(runs, tmp_path, capsys):
-    from daq.cli import main
+    from daq.cli.main import main
     from daq.io.interchange import write_recording
 
     rec, _, _ = runs["low-1kHz"]
@@ -284,7 +291,7 @@ def test_cli_end_to_end(runs, tmp_path, capsys):
 
 
 def test_cli_bad_input_exits_2_naming_the_file(tmp_path, capsys):
-    from daq.cli import main
+    from daq.cli.main import main
 
     bad = tmp_path / "nophi.csv"
     t = np.arange(0, 12, 0.01)

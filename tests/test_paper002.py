@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from daq.analysis import paper002 as p2
-from daq.cli import main
+from daq.cli.main import main
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.io.interchange import Recording, write_recording

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from daq.config import load_rig
+from daq.daemon.ramp_runner import RampEvent, RampProgress, RampRunner, RampRunnerCfg, segment_bounds
 from daq.errors import InputError
-from daq.ramp_runner import RampEvent, RampProgress, RampRunner, RampRunnerCfg, segment_bounds
 from daq.ramps import load_ramp, seed_ramp
 from drivers.factory import build_drivers
 from sim_backends.hardware import SimulatedHardware

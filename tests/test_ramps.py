@@ -7,13 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import expect_error, write
 
 from daq.config import load_rig
 from daq.errors import InputError
-from helpers import expect_error, write
 from daq.ramps import EXP_POINTS, Ramp, Segment, check_limits, constant_ramp, load_ramp, ramp_table, seed_ramp
-
-
 
 
 def load_bad(path: Path) -> InputError:

@@ -1,6 +1,6 @@
 """The recorder with real sockets, real processes and real files: kill -9, clean stop, drops, bad input.
 
-The recorder runs as its own process (``python -m daq.recorder``); this test process
+The recorder runs as its own process (``python -m daq.streaming.recorder``); this test process
 publishes on ``tcp://127.0.0.1:0``. Published values encode their row index exactly, so
 the file's content is checked value for value. Before measuring, the test publishes a
 ``probe`` stream until the recorder says it has it (ZeroMQ's slow joiner: blocks sent
@@ -23,12 +23,12 @@ import h5py
 import numpy as np
 import pytest
 
-from daq.bus import Publisher
 from daq.errors import InputError
 from daq.io import h5recover
 from daq.io.interchange import EVENT_FIELDS, FORMAT_RUN, read_h5, read_recording, write_h5
-from daq.recorder import BlockRejected, RunWriter, WriterCfg
-from daq.stream import BusEvent, StreamMeta, make_block
+from daq.io.runfile import BlockRejected, RunWriter, WriterCfg
+from daq.io.stream_format import BusEvent, StreamMeta, make_block
+from daq.streaming.bus import Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
 TIMEOUT = 30.0  # generous: a loaded 2-core CI machine
@@ -52,7 +52,7 @@ class RecorderProc:
     def __init__(self, tmp_path: Path, endpoint: str, out: Path, *extra: str) -> None:
         self.err_path = tmp_path / f"{out.stem}.stderr"
         self._err = open(self.err_path, "w")
-        self.proc = subprocess.Popen([sys.executable, "-m", "daq.recorder", "--endpoint", endpoint,
+        self.proc = subprocess.Popen([sys.executable, "-m", "daq.streaming.recorder", "--endpoint", endpoint,
                                       "--rig", "brake-2dof", "-o", str(out), *extra],
                                      stdout=subprocess.PIPE, stderr=self._err, cwd=ROOT, bufsize=0)
         self._buf = b""
@@ -465,7 +465,7 @@ def test_empty_run_file_is_an_input_error(tmp_path):
 def test_recorder_refuses_an_existing_output(tmp_path):
     out = tmp_path / "run.h5"
     out.write_bytes(b"precious")
-    proc = subprocess.run([sys.executable, "-m", "daq.recorder", "--rig", "brake-2dof", "-o", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "daq.streaming.recorder", "--rig", "brake-2dof", "-o", str(out)],
                           cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"{out}: -o: exists (use --force to overwrite)"

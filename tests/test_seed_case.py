@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daq.analysis.spectral import dominant_frequency, paper_spectrogram
+from daq.signals import dominant_frequency, paper_spectrogram
 
 
 def _slip_onsets(t, v_rel, level=-0.03):

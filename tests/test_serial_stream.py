@@ -9,8 +9,18 @@ import time
 import pytest
 
 from drivers.base import BackoffCfg, DriverState, Sample
-from drivers.framing import (SEQ_MODULUS, SYNC, TIME_MODULUS, FrameCodec, FrameDecoder, SeqTracker, crc16,
-                             crc16_table, frame_len, scale_for_lsb)
+from drivers.framing import (
+    SEQ_MODULUS,
+    SYNC,
+    TIME_MODULUS,
+    FrameCodec,
+    FrameDecoder,
+    SeqTracker,
+    crc16,
+    crc16_table,
+    frame_len,
+    scale_for_lsb,
+)
 from drivers.serial_stream import BinaryStreamCfg, BinaryStreamDriver, stream_channels
 from sim_backends.instrument import DeviceClock, Faults
 from sim_backends.pty_port import PtyPort

@@ -5,7 +5,7 @@ trajectories of 1-3 masses on a belt (its Figs. 8-11): the kinetic characteristi
 f(w) on an accelerating and a decelerating branch by least squares, the static
 limit f_s against stick time t_s and force rate delta, and periodicity from a
 Poincaré section. Here each step is a pure function over numpy arrays; the CLI
-(daq/cli_paper000.py) does the I/O.
+(daq/cli/paper000.py) does the I/O.
 
 Units: everything the law sees is dimensionless as in the paper's eq. (2) and our
 rig config: x = K X / F0, t = tau / tau0 with tau0 = sqrt(M/K), w = (S - X') / v_u with
@@ -52,17 +52,23 @@ f by d s.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
-from scipy.signal import savgol_filter
+from scipy.optimize import least_squares
+from scipy.signal import savgol_coeffs, savgol_filter
+from scipy.sparse import lil_matrix
 
-from ..config import BeltRig, config_for_recording
-from ..errors import InputError
-from ..io.interchange import Recording
-from ..physics import beltndof
-from ..physics.effects import TAIL
+from daq.config import BeltRig, config_for_recording
+from daq.errors import InputError
+from daq.io.interchange import Recording
+from daq.physics import beltndof
+from daq.physics.effects import TAIL, E, static_factor
+from daq.physics.friction import f_pwl_piece
+from daq.sim.effectset import environment_vector
+from daq.sim.rigs import BeltSim
 
 RIG = "belt-ndof"
 
@@ -192,7 +198,6 @@ def prepare(rec: Recording, source: str, rig: str | None = None, damping: float 
 
 def _sg_gain(half: int, deriv: int, degree: int = 3) -> float:
     """Noise gain of a centred Savitzky-Golay filter (per unit white input noise, per sample^deriv)."""
-    from scipy.signal import savgol_coeffs
 
     c = savgol_coeffs(2 * half + 1, min(degree, 2 * half), deriv=deriv)
     return float(np.sqrt(np.sum(c * c)))
@@ -370,7 +375,6 @@ def _std_from_jac(jac: np.ndarray, resid: np.ndarray, n_par: int) -> np.ndarray:
 def pwl_law(u: np.ndarray, growing: np.ndarray, f_s: np.ndarray, alpha_drop: float, f_k0: float, k_fall: float,
             w_min: float, k_rise: float, amp: float) -> np.ndarray:
     """|f| of paper 000's law on both branches, with the break-away drop from f_s: daq.physics.friction.f_pwl_piece."""
-    from ..physics.friction import f_pwl_piece
 
     return f_pwl_piece(np.asarray(u, dtype=float), np.asarray(growing, dtype=float), np.asarray(f_s, dtype=float),
                        alpha_drop, f_k0, k_fall, w_min, k_rise, amp)
@@ -386,7 +390,6 @@ def fit_kinetic_points(pts: FrictionPoints) -> LsqFit:
     rig (tau0 = 0.1 s) a tenth of the kept points still sit on it. Soft-L1 loss; w_min
     is started from a grid. Returns LAW = (alpha_drop, f_k0, ...).
     """
-    from scipy.optimize import least_squares
 
     k = pts.kept & (np.abs(pts.w) > 1e-6)
     u = np.abs(pts.w[k])
@@ -583,9 +586,6 @@ class WindowSimulator:
     """Simulates slip windows with given law parameters through daq.physics.beltndof.simulate."""
 
     def __init__(self, run: BeltRun, n_sub: int | None = None) -> None:
-        from ..physics.effects import E
-        from ..sim.effectset import environment_vector
-        from ..sim.rigs import BeltSim
 
         self.run = run
         cfg_n = run.cfg.model_copy(update={"mechanics": run.cfg.mechanics.model_copy(
@@ -609,7 +609,6 @@ class WindowSimulator:
 
         ``v``: start velocities of the window's free masses (default: their current guess).
         """
-        from ..physics.effects import E
 
         P = beltndof.P
         H = beltndof.H
@@ -695,8 +694,6 @@ def fit_output_error(runs: list[BeltRun], windows: list[SlipWindow], law0: np.nd
     depend on the law and its own nuisances), so scipy differences all windows' own
     columns in 1 + (free velocities per window) passes.
     """
-    from scipy.optimize import least_squares
-    from scipy.sparse import lil_matrix
 
     sims = [WindowSimulator(r, n_sub=N_SUB) for r in runs]
     nw = len(windows)
@@ -766,7 +763,6 @@ STATIC = ("f_s0", "stick_time_gain", "stick_time_tau_s", "force_rate_gain")
 def static_law(t_s: np.ndarray, delta: np.ndarray, f_s0: float, g_t: float, tau: float, g_d: float,
                q0: float) -> np.ndarray:
     """f_s(t_s, Delta) of the stick-time and force-rate effects: daq.physics.effects.static_factor, vectorised."""
-    from ..physics.effects import static_factor
 
     return f_s0 * np.array([static_factor(float(a), float(b), g_t, tau, g_d, q0) for a, b in
                             zip(np.atleast_1d(t_s), np.atleast_1d(delta))])
@@ -780,7 +776,6 @@ def fit_static(t_s: np.ndarray, delta: np.ndarray, f_s: np.ndarray, q0: float) -
     model files fix it for the same reason). tau is started from a grid over the
     observed stick times; with g_t -> 0 it is undetermined and its std says so.
     """
-    from scipy.optimize import least_squares
 
     t_s, delta, f_s = (np.asarray(a, dtype=float) for a in (t_s, delta, f_s))
     if f_s.size < 5:
@@ -878,7 +873,6 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
     record, enter the law fit (a limit cycle repeats itself; more windows cost time,
     not information); every window then gets its break-away level with the law fixed.
     """
-    import time
 
     t_start = time.perf_counter()
     say = progress or (lambda msg: None)
@@ -909,7 +903,7 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
         ee = fit_kinetic_points(pts)
     except ValueError as exc:
         raise InputError(runs[0].source, "x1", f"equation-error fit impossible: {exc}") from None
-    say(f"equation error (paper's least squares): " + ", ".join(f"{k}={v:.4g}" for k, v in zip(ee.names, ee.values)))
+    say("equation error (paper's least squares): " + ", ".join(f"{k}={v:.4g}" for k, v in zip(ee.names, ee.values)))
     law0 = np.clip(ee.values, LAW_LO + 1e-6, LAW_HI - 1e-6)
     sub = []
     for k in range(len(runs)):
@@ -992,7 +986,7 @@ def belt_law(runs: list[BeltRun], masses: list[int] | None = None, windows_per_m
     if law.rms > RMS_AT_NOISE:
         warnings.append(f"the law fit is at {law.rms:.3g} noise units, not at the noise: model error or a local "
                         "minimum (compare with --windows N)")
-    say(f"law: " + ", ".join(f"{k}={v:.4g}" for k, v in zip(law.names, law.values))
+    say("law: " + ", ".join(f"{k}={v:.4g}" for k, v in zip(law.names, law.values))
         + f"; rms {law.rms:.3g} noise units")
     good = per_all <= limit
     episodes = []

@@ -16,7 +16,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize  # noqa: E402
 
-from ..io.interchange import atomic_path  # noqa: E402
+from daq.io.interchange import atomic_path  # noqa: E402
+
 from .paper000 import LAW, BeltLawResult, PoincareAnalysis, pwl_law, static_law  # noqa: E402
 
 

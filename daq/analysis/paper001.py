@@ -30,19 +30,28 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Literal
 
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Patch
 from pydantic import BaseModel, ConfigDict, Field
 from scipy import signal
 from scipy.interpolate import make_interp_spline
 from scipy.optimize import least_squares
 
-from ..config import RigConfig
-from ..errors import InputError
-from ..physics import brake2dof
-from ..physics.friction import mu_brake
-from .spectral import paper_spectrogram
+from daq.config import RigConfig
+from daq.errors import InputError
+from daq.estimation.regime import classify, switch_distance, switch_positions
+from daq.estimation.rigmodels import BrakeModel
+from daq.io.interchange import atomic_path
+from daq.physics import brake2dof
+from daq.physics.effects import E
+from daq.physics.friction import mu_brake
+from daq.signals import paper_spectrogram
+from daq.sim.effectset import effect_vector
+from daq.sim.rigs import make_sim
 
 # paper 001, section 5 (Fig. 8): segment boundaries of the V0 = 0.25 m/s, Tmax = 160 s run "indicated
 # conditionally based on visual estimates", and what the text says happens in each
@@ -123,8 +132,6 @@ class FrictionSeries:
 
 def brake_params(cfg: RigConfig) -> np.ndarray:
     """The rig's compiled parameter vector (as the simulator builds it)."""
-    from ..sim.effectset import effect_vector
-    from ..sim.rigs import make_sim
 
     return make_sim(cfg, effect_vector(cfg)[0]).p.copy()
 
@@ -132,8 +139,6 @@ def brake_params(cfg: RigConfig) -> np.ndarray:
 def friction_series(cfg: RigConfig, t: np.ndarray, x1: np.ndarray, phi: np.ndarray, vb: np.ndarray,
                     window_s: float = 0.02, hysteresis: float = 0.3) -> FrictionSeries:
     """Friction force, normal load, mu and mu_eff from measured x1, phi, vb via the rig's own equations."""
-    from ..estimation.regime import classify, switch_distance, switch_positions
-    from ..estimation.rigmodels import BrakeModel
 
     model = BrakeModel(cfg)
     r = float(model.p[brake2dof.P.r])
@@ -859,8 +864,6 @@ def analyse_run(t: np.ndarray, channels: dict[str, np.ndarray], cfg: RigConfig, 
 
 def _geo_weight(cfg: RigConfig) -> float:
     """Weight of the geometric effect in the rig's seed model (1 = the paper's nonlinear model)."""
-    from ..physics.effects import E
-    from ..sim.effectset import effect_vector
 
     return float(effect_vector(cfg)[0][E.GEO_WEIGHT])
 
@@ -872,9 +875,7 @@ KIND_COLOURS = {"quasi-steady": "#4daf4a", "period-doubling": "#377eb8", "period
 
 
 def _save(fig, path) -> None:
-    import matplotlib.pyplot as plt
 
-    from ..io.interchange import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
@@ -906,7 +907,6 @@ def _spec_panel(ax, spec, title: str, modes: list[float], fmax: float = 50.0):
 
 def spectrogram_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     """Time histories of x1 and x1' over their spectrograms (paper Figs. 4, 5, 10)."""
-    import matplotlib.pyplot as plt
 
     fs = ctx.fs
     fig, ax = plt.subplots(4, 1, figsize=(12, 11), sharex=True, constrained_layout=True,
@@ -933,14 +933,12 @@ def spectrogram_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
 
 
 def _name(p: str) -> str:
-    from pathlib import Path
 
     return Path(p).name
 
 
 def planes_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     """Phase planes (x1, x1') and configuration planes (x1, y1) in time windows (paper Figs. 6, 7, 11)."""
-    import matplotlib.pyplot as plt
 
     fs = ctx.fs
     n = len(res.planes)
@@ -965,7 +963,6 @@ def planes_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
 
 def friction_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     """mu_eff(t), mu against V_rel with the fitted law (7), F/(m g) against eq. (10), and the bias profile."""
-    import matplotlib.pyplot as plt
 
     fs = ctx.fs
     fr = res.friction
@@ -1040,8 +1037,6 @@ def friction_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
 
 def timeline_figure(res: BrakeRunResult, ctx: RunContext, path) -> None:
     """The segments on a timeline under the x1 spectrogram, with the features that decided them."""
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
 
     tr = ctx.trace
     trans = res.transitions

@@ -49,19 +49,28 @@ sampled) -> v0. The fit uses every selected sample of the cell.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.lines import Line2D
+from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
-from ..config import RigConfig, config_for_recording
-from ..errors import InputError
-from ..io.interchange import Recording
-from ..physics.friction import mu_drum
-from ..ramps import Ramp, Segment
+from daq.config import RigConfig, config_for_recording
+from daq.errors import InputError
+from daq.estimation.rigmodels import DrumModel
+from daq.io.interchange import Recording, atomic_path
+from daq.io.loading import load_data
+from daq.physics import drum
+from daq.physics.friction import mu_drum
+from daq.ramps import Ramp, Segment
+from daq.sim.effectset import effect_vector, parse_effect
 
 RIG = "drum-pendulum"
 PARAMS = ("A", "B", "C", "D", "E")
@@ -177,7 +186,6 @@ class MuSeries:
 
 def _mu_from(model, phi, vel, accel, thrust, v_drive):
     """eq. (2) through the rig physics: F (common convention) / N, turned into the paper's sign."""
-    from ..physics import drum
 
     f = {"phi": phi, "vel": vel, "accel": accel, "thrust": thrust, "drum_speed": v_drive / model.p[drum.P.R],
          "drum_speed'": np.zeros_like(phi)}
@@ -191,8 +199,6 @@ def _mu_from(model, phi, vel, accel, thrust, v_drive):
 def mu_series(rec: Recording, cfg: RigConfig, source: str, *, v_min: float = V_MIN, guard_s: float = GUARD_S,
               mu1: float = 0.0) -> MuSeries:
     """mu(t) by eq. (2) from the measured channels, the relative sliding speed, and the sample selection."""
-    from ..estimation.rigmodels import DrumModel
-    from ..sim.effectset import effect_vector, parse_effect
 
     for c in ("phi", "thrust", "drum_speed"):
         if c not in rec.channels:
@@ -444,9 +450,7 @@ def analyse_drum_mu(path: str | Path, *, rig: str | None = None, v_min: float = 
                     mu1: float = 0.0, t_from: float | None = None,
                     t_to: float | None = None) -> tuple[DrumMuResult, MuSeries]:
     """Read a drum-pendulum recording, mu(t) by eq. (2), law (3) fitted; (result, the series for figures)."""
-    import time
 
-    from ..models.session import load_data
 
     t0 = time.perf_counter()
     src = str(path)
@@ -492,10 +496,8 @@ def _drum_stats(rec: Recording, cfg: RigConfig) -> dict[str, float]:
 
 def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     """mu(t) with the used samples marked; mu vs v with the fit; residuals vs v and t."""
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     outdir.mkdir(parents=True, exist_ok=True)
     eps = res.sgn_eps_m_per_s
@@ -534,7 +536,6 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     paths.append(_save(fig, outdir / "mu_t.png"))
 
     # 2: mu vs v with the fit
-    from matplotlib.lines import Line2D
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
     vv = np.geomspace(max(av[u].min(), 1e-5), av[u].max(), 400)
@@ -590,9 +591,7 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
 
 def _save(fig, path: Path) -> Path:
     """Write a figure atomically (no half-written PNG after a crash) and close it."""
-    import matplotlib.pyplot as plt
 
-    from ..io.interchange import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
@@ -602,7 +601,6 @@ def _save(fig, path: Path) -> Path:
 
 def _log_mm(ax) -> None:
     """Log x axis in mm/s with plain tick labels (1, 2, 5, 10, ...)."""
-    from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 
     ax.set_xscale("log")
     lo, hi = ax.get_xlim()

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..config import RigConfig
+from daq.config import RigConfig
+
 from .differentiate import fir_bank, noise_gain, sg_coefficients
 from .fit import FitResult, FitWindow, fit_law
 from .regime import classify

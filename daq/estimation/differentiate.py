@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from ..physics.jit import kernel
+from daq.physics.jit import kernel
 
 
 def sg_coefficients(n: int, degree: int, deriv: int, lag: int, dt: float) -> np.ndarray:

@@ -13,9 +13,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..config import RigConfig
-from ..physics.effects import E
-from ..physics.friction import f_pwl_piece, mu_brake, mu_drum
+from daq.config import RigConfig
+from daq.physics.effects import E
+from daq.physics.friction import f_pwl_piece, mu_brake, mu_drum
 
 
 def _brake(th: dict[str, float], v: np.ndarray, growing: np.ndarray) -> np.ndarray:

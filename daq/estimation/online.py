@@ -30,9 +30,10 @@ import numpy as np
 import zmq
 from pydantic import BaseModel, ConfigDict, Field
 
-from ..bus import Publisher, Subscriber
-from ..config import RigConfig
-from ..stream import Block, BusEvent, StreamMeta
+from daq.config import RigConfig
+from daq.io.stream_format import Block, BusEvent, StreamMeta
+from daq.streaming.bus import Publisher, Subscriber
+
 from .align import HoldBuffer, Pending
 from .core import EstimateBlock, EstimatorCfg, FrictionEstimator
 from .fit import FitData, FitResult, fit_law

@@ -18,13 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import RigConfig
-from ..physics import beltndof, brake2dof, drum
-from ..physics.contact import AUX, N_AUX
-from ..physics.effects import E, TAIL
-from ..physics.jit import kernel
-from ..sim.effectset import effect_vector
-from ..sim.rigs import make_sim
+from daq.config import RigConfig
+from daq.physics import beltndof, brake2dof, drum
+from daq.physics.contact import AUX, N_AUX
+from daq.physics.effects import TAIL, E
+from daq.physics.jit import kernel
+from daq.sim.effectset import effect_vector
+from daq.sim.rigs import make_sim
+
 from .laws import LawDef, law_for
 
 

@@ -20,7 +20,7 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InputError
+from daq.errors import InputError
 
 SIGNATURE = b"\x89HDF\r\n\x1a\n"
 FLAGS_OFFSET = 11

@@ -20,11 +20,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from nptdms import TdmsFile
 
-from ..config import RigConfig, load_rig
-from ..errors import InputError
-from ..stream import BusEvent, StreamMeta, make_block
+from daq.config import RigConfig, load_rig
+from daq.errors import InputError
+from daq.io.runfile import RunWriter
+
 from .interchange import STREAM_RESERVED, atomic_path, read_csv, read_recording, write_csv
+from .stream_format import BusEvent, StreamMeta, make_block
 
 IMPORT_STREAM = "import"
 
@@ -96,7 +99,6 @@ def read_csv_table(path: str | Path) -> Table:
 
 def read_tdms_table(path: str | Path) -> Table:
     """A LabVIEW TDMS file: one group of channels named as the interchange columns."""
-    from nptdms import TdmsFile
 
     src = str(path)
     log = logging.getLogger("nptdms")
@@ -184,7 +186,6 @@ def validate(table: Table, cfg: RigConfig) -> tuple[list[str], list[str]]:
 
 def import_file(path: str | Path, rig: str | Path, out: str | Path) -> Path:
     """Import a CSV or TDMS file for ``rig`` into a run HDF5 file at ``out``; nothing is written on error."""
-    from ..recorder import RunWriter
 
     out = Path(out)
     if out.suffix.lower() not in (".h5", ".hdf5"):

@@ -10,7 +10,7 @@ Simple (``format = "friction-daq recording 1"``: simulations, conversions):
     root attributes         rig, software, created, source, rig_config (TOML text), ramp, ...
 Files are written to a temporary name and renamed, so a failed write leaves nothing behind.
 
-Run (``format = "friction-daq run 1"``, written live by ``daq.recorder``):
+Run (``format = "friction-daq run 1"``, written live by ``daq.streaming.recorder``):
     /streams/<stream>/t             float64 host monotonic time [s]
     /streams/<stream>/device_t      float64 device time [s] (if the stream has it)
     /streams/<stream>/<channel>     the stream's dtype, attribute ``unit``
@@ -28,19 +28,16 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import re
-import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import h5py
 import numpy as np
 
-from ..errors import InputError
-from . import h5recover
+from daq.errors import InputError
+from daq.io import h5recover
+from daq.io.files import atomic_path
 
 FORMAT_SIMPLE = "friction-daq recording 1"
 FORMAT_RUN = "friction-daq run 1"
@@ -88,24 +85,6 @@ def events_from_array(arr: np.ndarray, t0: float = 0.0) -> list[dict[str, object
     return out
 
 
-_UMASK = os.umask(0)  # read once at import (os.umask can only be read by setting it)
-os.umask(_UMASK)
-
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it over ``path`` only if the block succeeds."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~_UMASK)  # what a plain open() would give, not mkstemp's private 0600
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _check_shapes(rec: Recording) -> None:

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import RigConfig
-from ..errors import InputError
-from ..physics.effects import CATALOG, E
-from ..sim.effectset import environment_vector
-from ..sim.rigs import SimRig, make_sim
+from daq.config import RigConfig
+from daq.errors import InputError
+from daq.physics.effects import CATALOG, E
+from daq.sim.effectset import environment_vector
+from daq.sim.rigs import SimRig, make_sim
+
 from .spec import Model, rig_config_for
+from .user_effects import load_user_effect
 
 
 class Builder:
@@ -31,7 +33,6 @@ class Builder:
         if len(user) > 1:
             raise InputError(source, "effects", "at most one user effect per model (for now)")
         if user:
-            from .user_effects import load_user_effect
 
             name, eff = next(iter(user.items()))
             self.user = load_user_effect(eff.path, name)

@@ -14,7 +14,9 @@ import math
 
 import numpy as np
 
-from ..analysis.spectral import dominant_frequency, paper_spectrogram
+from daq.physics.contact import AUX
+from daq.signals import dominant_frequency, paper_spectrogram
+
 from .session import Fitted, Session
 
 N_TIME_BINS = 10
@@ -101,7 +103,6 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     out["worst_regime"] = worst[0]
     # forward simulation over the whole record
     fidx, pred, states, aux = session.free_run(fitted)
-    from ..physics.contact import AUX
 
     tt = m.t[fidx]
     meas_inv = invariants(session, tt, m.outputs[primary][fidx], m.v_rel[fidx])

@@ -13,45 +13,19 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
-from ..config import RigConfig
-from ..errors import InputError
-from ..io.interchange import Recording
-from ..physics import brake2dof, drum
-from ..physics.contact import AUX
-from ..physics.effects import TAIL, stick_rates
-from ..physics.jit import kernel
-from ..sim.rigs import SimRig
+from daq.config import RigConfig
+from daq.errors import InputError
+from daq.io.interchange import Recording
+from daq.io.loading import MODEL_CHANNELS
+from daq.physics import brake2dof, drum
+from daq.physics.contact import AUX
+from daq.physics.effects import TAIL, stick_rates
+from daq.physics.jit import kernel
+from daq.signals import noise_sigma, sg
+from daq.sim.rigs import SimRig
 
-REQUIRED = {
-    "brake-2dof": ("x1", "phi", "vb"),
-    "drum-pendulum": ("phi", "vel", "thrust", "drum_speed"),
-    "belt-ndof": ("x1", "vb"),
-}
-OPTIONAL = ("vb_set", "temp")
 FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
-
-
-def sg(x: np.ndarray, rate: float, half_s: float, deriv: int = 0, degree: int = 3) -> np.ndarray:
-    """Centred Savitzky-Golay smoothing/derivative over +-half_s (at least +-3 samples)."""
-    half = max(3, int(round(half_s * rate)))
-    n = 2 * half + 1
-    if n >= x.size:
-        n = x.size - 1 if x.size % 2 == 0 else x.size
-    return savgol_filter(x, n, min(degree, n - 1), deriv=deriv, delta=1.0 / rate, mode="interp")
-
-
-def noise_sigma(x: np.ndarray) -> float:
-    """White-noise level from third differences (MAD, robust to sparse stick-slip transitions).
-
-    An upper bound when the signal itself has energy near the sampling rate (slow sampling).
-    """
-    d3 = np.diff(x, 3)
-    if d3.size < 8:
-        return float("nan")
-    mad = np.median(np.abs(d3 - np.median(d3)))
-    return float(1.4826 * mad / math.sqrt(20.0))
 
 
 @dataclass
@@ -106,9 +80,9 @@ class RigData(ABC):
         self.cfg = cfg
 
     def prepare(self, rec: Recording, source: str) -> Measured:
-        for ch in REQUIRED[self.rig]:
+        for ch in MODEL_CHANNELS[self.rig]:
             if ch not in rec.channels:
-                raise InputError(source, ch, f"missing column (a {self.rig} model needs {', '.join(REQUIRED[self.rig])})")
+                raise InputError(source, ch, f"missing column (a {self.rig} model needs {', '.join(MODEL_CHANNELS[self.rig])})")
             if not np.all(np.isfinite(rec.channels[ch])):
                 raise InputError(source, ch, "contains NaN or infinite values")
         t = np.asarray(rec.t, dtype=float)

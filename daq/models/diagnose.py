@@ -10,7 +10,6 @@ one lucky window.
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import os
 from dataclasses import dataclass
@@ -18,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ..physics.effects import CATALOG
+from daq.physics.effects import CATALOG
+
 from .session import Fitted, Session
 from .shooting import FitResult
 from .spec import Model, add_effect

@@ -10,17 +10,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..analysis.spectral import paper_spectrogram  # noqa: E402
-from ..io.interchange import atomic_path  # noqa: E402
-from ..physics.contact import AUX  # noqa: E402
-from .data import sg  # noqa: E402
+from daq.io.png import save_png  # noqa: E402
+from daq.physics.contact import AUX  # noqa: E402
+from daq.signals import paper_spectrogram, sg  # noqa: E402
+
 from .session import Fitted, Session  # noqa: E402
-
-
-def _save(fig, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
 
 
 def _pick_windows(session: Session, n: int = 3) -> np.ndarray:
@@ -118,7 +112,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
         lines.append(f"{k}: {d['error']:.3g} {d['unit']} (floor {d['noise_floor']:.3g})")
     ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8)
     fig.suptitle(title or f"{result['model']} vs {Path(result['data']).name}")
-    _save(fig, path)
+    save_png(fig, path, dpi=90)
 
 
 def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
@@ -133,7 +127,7 @@ def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
         ax.set_title(f"{primary}: {label}")
         ax.set_xlabel("t [s]")
     axes[0].set_ylabel("f [Hz]")
-    _save(fig, path)
+    save_png(fig, path, dpi=90)
 
 
 def diagnose_figure(session: Session, diag, path: Path) -> None:
@@ -173,7 +167,7 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
         ax.legend(fontsize=8)
     ax.set_title("evidence: the held-out window the model fits worst")
     fig.suptitle(diag.summary[:160] + ("..." if len(diag.summary) > 160 else ""), fontsize=9)
-    _save(fig, path)
+    save_png(fig, path, dpi=90)
 
 
 def history_figure(entries: list[dict], path: Path) -> None:
@@ -194,4 +188,4 @@ def history_figure(entries: list[dict], path: Path) -> None:
     ax.set_yscale("log")
     ax.set_title("model error across revisions (dashed: noise floor)")
     ax.legend(fontsize=8)
-    _save(fig, path)
+    save_png(fig, path, dpi=90)

@@ -17,18 +17,20 @@ import json
 import sys
 import time
 
+from daq.config import load_rig
+from daq.sim.effectset import parse_effect
+from daq.sim.run import simulate
+
+from .diagnose import diagnose
+from .session import Session
+from .spec import remove_effect, seed_model
+
 CASES = [("brake-2dof", e, None) for e in ("accel-sign", "stick-time", "force-rate", "temperature", "belt-speed")] + [
     ("drum-pendulum", "bearing-friction", None), ("drum-pendulum", "temperature", None),
     ("brake-2dof", None, "normal-load"), ("brake-2dof", None, None), ("drum-pendulum", None, None)]
 
 
 def run_case(rig: str, hidden: str | None, removed: str | None, rate: float, seed: int = 7) -> dict:
-    from ..config import load_rig
-    from ..sim.effectset import parse_effect
-    from ..sim.run import simulate
-    from .diagnose import diagnose
-    from .session import Session
-    from .spec import remove_effect, seed_model
 
     cfg = load_rig(rig)
     rec = simulate(cfg, effects=[parse_effect(hidden)] if hidden else [], rate=rate, seed=seed,

@@ -13,9 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import RigConfig
-from ..errors import InputError
-from ..io.interchange import Recording, read_recording
+from daq.config import RigConfig
+from daq.errors import InputError
+from daq.io.interchange import Recording
+from daq.io.loading import load_data
+from daq.physics.effects import CATALOG
+
 from .build import Builder
 from .data import Measured, RigData, rig_data
 from .shooting import FitResult, Problem, Windows, make_windows
@@ -23,63 +26,6 @@ from .spec import Model, drive_source, rig_config_for
 
 MIN_CONTINUATION = 8  # samples
 PROBE_ITER = 5  # iterations each start gets before the best one goes on
-
-
-def load_data(path: str | Path, rig: str | None) -> Recording:
-    """A recording (HDF5) or an interchange CSV/TDMS file; irregular host timestamps are resampled."""
-    p = Path(path)
-    if p.suffix.lower() in (".h5", ".hdf5"):
-        rec = read_recording(p)
-    elif p.suffix.lower() in (".csv", ".tdms"):
-        from ..config import load_rig
-        from ..io.importer import read_table, validate
-
-        if rig is None:
-            raise InputError(str(p), "--rig", "a CSV/TDMS file does not say which rig it is from: give --rig")
-        cfg = load_rig(rig)
-        table = read_table(p)
-        channels, units = validate(table, cfg)
-        rec = Recording(cfg.rig, table.t, {c: table.columns[c][0] for c in channels}, dict(zip(channels, units)))
-    else:
-        raise InputError(str(p), "(file)", "unsupported format (use .h5, .csv or .tdms)")
-    if rig is not None and rec.rig is not None and rec.rig != rig and not Path(rig).suffix:
-        raise InputError(str(p), "rig", f"the recording is from {rec.rig}, not {rig}")
-    return _uniform(rec, str(p))
-
-
-def _uniform(rec: Recording, source: str) -> Recording:
-    """Recorder files carry host timestamps (jitter, repeats, NaN where a stream had not started) and extra
-    streams (estimator output): keep the channels a model reads, over the stretch where all have data,
-    on a uniform time base."""
-    from .data import OPTIONAL, REQUIRED
-
-    need = [c for c in (*REQUIRED.get(rec.rig or "", ()), *OPTIONAL) if c in rec.channels]
-    t = np.asarray(rec.t, dtype=float)
-    good = np.isfinite(t)
-    for c in need:
-        good &= np.isfinite(rec.channels[c])
-    idx = np.flatnonzero(good)
-    if idx.size < 2:
-        raise InputError(source, "t", "no stretch where every channel has data")
-    lo, hi = idx[0], idx[-1] + 1
-    t = t[lo:hi]
-    ch = {k: np.asarray(v[lo:hi], dtype=float) for k, v in rec.channels.items()}
-    dt = np.diff(t)
-    rate = 1.0 / float(np.median(dt)) if np.median(dt) > 0 else 0.0
-    if rate <= 0 or np.any(dt < 0) and np.sum(dt < 0) > 0.01 * dt.size:
-        raise InputError(source, "t", "times must increase")
-    if np.all(dt > 0) and np.max(np.abs(dt * rate - 1.0)) <= 0.01 and all(np.all(np.isfinite(ch[c])) for c in need):
-        return Recording(rec.rig, t, ch, rec.units, rec.meta, {})
-    keep = np.concatenate([[True], dt > 0])  # repeated host times: keep the first
-    keep &= np.maximum.accumulate(t) == t
-    t = t[keep]
-    tu = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * rate)) + 1) / rate
-    out = {}
-    for k, v in ch.items():
-        v = v[keep]
-        ok = np.isfinite(v)
-        out[k] = np.interp(tu, t[ok], v[ok]) if ok.sum() >= 2 else np.full(tu.size, np.nan)
-    return Recording(rec.rig, tu, out, rec.units, {**rec.meta, "resampled_Hz": rate}, {})
 
 
 @dataclass
@@ -238,7 +184,6 @@ class Session:
 def switched_off(model: Model, keys: set[str]) -> dict[str, float]:
     """Start values for an effect added to a fitted model: its strength at neutral, so the fit
     starts exactly where the smaller model ended and can only improve on it."""
-    from ..physics.effects import CATALOG
 
     out = {}
     for k in keys:

@@ -26,9 +26,12 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from ..config import RigConfig, load_rig
-from ..errors import InputError, parse_toml, read_text
-from ..physics.effects import CATALOG
+from daq.config import RigConfig, load_rig
+from daq.errors import InputError, parse_toml, read_text
+from daq.io.files import atomic_path
+from daq.physics.effects import CATALOG
+
+from .user_effects import load_user_effect
 
 SECTIONS = ("friction", "mechanics")
 
@@ -247,7 +250,6 @@ def dumps(model: Model) -> str:
 
 
 def save_model(model: Model, path: str | Path) -> None:
-    from ..io.interchange import atomic_path
 
     with atomic_path(path) as tmp:
         Path(tmp).write_text(dumps(model))
@@ -331,7 +333,6 @@ def add_effect(model: Model, name: str, source: str = "model add", path: str | N
         raise InputError(source, name, "the model already has this effect")
     m = model.model_copy(deep=True)
     if path is not None:
-        from .user_effects import load_user_effect
 
         ue = load_user_effect(path)
         m.effects[name] = Effect(path=str(path), params={k: Param(value=p.start, free=True, lo=p.lo, hi=p.hi)

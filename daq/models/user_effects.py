@@ -32,8 +32,10 @@ from pathlib import Path
 
 from numba import njit
 
-from ..errors import InputError
-from ..physics.effects import E
+from daq.errors import InputError
+from daq.physics import brake2dof, drum
+from daq.physics.effects import E
+from daq.sim.integrate import make_rk4
 
 MAX_PARAMS = 4
 SIGNATURE = ("v_rel", "t", "temp", "travel", "stick_clock", "p0", "p1", "p2", "p3")
@@ -67,8 +69,6 @@ class UserEffect:
     def _integrator(self, sim):
         key = (str(self.path), sim.rig_id)
         if key not in _compiled:
-            from ..physics import brake2dof, drum
-            from ..sim.integrate import make_rk4
 
             module = {"brake-2dof": brake2dof, "drum-pendulum": drum}.get(sim.rig_id)
             if module is None:

@@ -24,8 +24,7 @@ from enum import IntEnum
 import numpy as np
 
 from .contact import AUX, N_AUX
-from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, ramp_eval, static_factor
-from .effects import temperature_factor
+from .effects import TAIL, E, accel_sign_weight, drive_speed, env_rates, ramp_eval, static_factor, temperature_factor
 from .friction import f_pwl_piece
 from .jit import helper, kernel
 

@@ -13,13 +13,27 @@ import math
 from enum import IntEnum
 
 import numpy as np
-from .jit import helper, kernel
 from scipy import optimize
+from scipy.linalg import eigh
 
 from .contact import AUX, N_AUX
-from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, normal_load, ramp_eval, smooth_sign
-from .effects import static_factor, stick_rates_if_read, temperature_factor, user_mu_factor
+from .effects import (
+    N_E,
+    TAIL,
+    E,
+    accel_sign_weight,
+    drive_speed,
+    env_rates,
+    normal_load,
+    ramp_eval,
+    smooth_sign,
+    static_factor,
+    stick_rates_if_read,
+    temperature_factor,
+    user_mu_factor,
+)
 from .friction import mu_brake
+from .jit import helper, kernel
 
 RIG_ID = "brake-2dof"
 N_MECH = 4
@@ -146,7 +160,6 @@ def energy(states: np.ndarray, p: np.ndarray, geo_weight: float) -> np.ndarray:
 
 def equilibrium(p: np.ndarray, geo_weight: float) -> tuple[float, float]:
     """Static equilibrium (x1, y1) without friction: where eqs. (5a)/(5b) give zero acceleration."""
-    from .effects import N_E
 
     pp = p.copy()
     pp[P.mu0] = 0.0
@@ -197,7 +210,6 @@ def linear_modes(p: np.ndarray, geo_weight: float, about: str = "equilibrium") -
                 return potential(q[0], q[1], p, geo_weight)
             kmat[i, j] = (v(h, h) - v(h, -h) - v(-h, h) + v(-h, -h)) / (4 * h * h)
     mmat = np.diag([p[P.m], p[P.J] / p[P.r] ** 2])
-    from scipy.linalg import eigh
 
     w2 = eigh(kmat, mmat, eigvals_only=True)
     return np.sqrt(np.abs(w2)) / (2 * math.pi)

@@ -17,12 +17,24 @@ import math
 from enum import IntEnum
 
 import numpy as np
-from .jit import kernel
 
 from .contact import AUX
-from .effects import E, TAIL, accel_sign_weight, drive_speed, env_rates, normal_load, ramp_eval, smooth_sign
-from .effects import static_factor, stick_rates_if_read, temperature_factor, user_mu_factor
+from .effects import (
+    TAIL,
+    E,
+    accel_sign_weight,
+    drive_speed,
+    env_rates,
+    normal_load,
+    ramp_eval,
+    smooth_sign,
+    static_factor,
+    stick_rates_if_read,
+    temperature_factor,
+    user_mu_factor,
+)
 from .friction import mu_drum
+from .jit import kernel
 
 RIG_ID = "drum-pendulum"
 N_MECH = 2

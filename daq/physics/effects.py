@@ -15,8 +15,9 @@ import math
 from enum import IntEnum
 
 import numpy as np
-from .jit import helper, kernel
 from pydantic import BaseModel, ConfigDict
+
+from .jit import helper, kernel
 
 
 class E(IntEnum):

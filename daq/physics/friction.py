@@ -8,6 +8,7 @@ odd in the relative velocity; the tests check it.
 from __future__ import annotations
 
 import numpy as np
+
 from .jit import helper
 
 

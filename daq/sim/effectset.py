@@ -6,9 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import RigConfig
-from ..errors import InputError
-from ..physics.effects import CATALOG, ENVIRONMENT_SLOTS, E, neutral_vector
+from daq.config import RigConfig
+from daq.errors import InputError
+from daq.physics.effects import CATALOG, ENVIRONMENT_SLOTS, E, neutral_vector
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import types
 import numpy as np
 from numba import njit
 
-from ..physics.contact import N_AUX
+from daq.physics.contact import N_AUX
 
 
 def _rk4_template(s0, t0, dt, n_sub, n_out, p, e, rt, rv):

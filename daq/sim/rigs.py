@@ -12,10 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import BeltRig, BrakeRig, DrumRig, RigConfig
-from ..physics import beltndof, brake2dof, drum
-from ..physics.contact import AUX
-from ..physics.effects import E, TAIL
+from daq.config import BeltRig, BrakeRig, DrumRig, RigConfig
+from daq.physics import beltndof, brake2dof, drum
+from daq.physics.contact import AUX
+from daq.physics.effects import TAIL, E
+
 from .integrate import make_rk4
 
 _rk4_cache: dict[str, object] = {}

@@ -8,11 +8,12 @@ from typing import Callable
 
 import numpy as np
 
-from .. import __version__
-from ..config import RigConfig, config_text
-from ..errors import InputError
-from ..io.interchange import Recording
-from ..ramps import check_limits, constant_ramp, ramp_table, seed_ramp
+from daq import __version__
+from daq.config import RigConfig, config_text
+from daq.errors import InputError
+from daq.io.interchange import Recording
+from daq.ramps import check_limits, constant_ramp, ramp_table, seed_ramp
+
 from .effectset import EffectRequest, effect_vector
 from .rigs import Chunk, make_sim
 from .sensors import measure

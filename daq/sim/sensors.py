@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import ChannelCfg
+from daq.config import ChannelCfg
 
 
 def measure(cfg: ChannelCfg, t: np.ndarray, truth: np.ndarray, rng: np.random.Generator,

@@ -15,6 +15,18 @@ import uuid
 
 import can
 
+from drivers.can_sensors import (
+    SEQ_MODULUS,
+    SEQ_SIGNAL,
+    TIME_MODULUS,
+    TIME_SIGNAL,
+    CanBusCfg,
+    CanSensorCfg,
+    CanSensorDriver,
+    SensorSelection,
+    value_signal,
+)
+
 TARGET_FRAMES_PER_S = 20_000.0
 SAMPLE_PERIOD_US = 4096  # 4096 samples x 4096 us = 2^24 us: a burst ends where the time counter wraps
 SAMPLES_PER_BURST = 4096  # also a multiple of 256, so replaying the burst keeps sequence and time continuous
@@ -22,7 +34,6 @@ SAMPLES_PER_BURST = 4096  # also a multiple of 256, so replaying the burst keeps
 
 def _burst(rig: str) -> list[can.Message]:
     """One burst of frames: per sample, one frame per message of the rig, consecutive seq and time."""
-    from drivers.can_sensors import SEQ_MODULUS, SEQ_SIGNAL, TIME_MODULUS, TIME_SIGNAL, SensorSelection, value_signal
 
     msgs = SensorSelection(rig=rig).messages()
     out = []
@@ -56,7 +67,6 @@ def _drain_raw(bus: can.BusABC, n: int) -> tuple[int, float]:
 
 def bench_can(seconds: float = 3.0, rig: str = "drum-pendulum") -> dict:
     """Decode rate of the CAN sensor driver (about ``seconds`` of timed decoding) and its raw baseline."""
-    from drivers.can_sensors import CanBusCfg, CanSensorCfg, CanSensorDriver, SensorSelection
 
     bus_cfg = CanBusCfg(interface="virtual", channel=f"bench-can-{uuid.uuid4().hex}")
     drv = CanSensorDriver(CanSensorCfg(name="bench-can", bus=bus_cfg, select=SensorSelection(rig=rig),

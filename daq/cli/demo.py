@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import InputError
+from daq.errors import InputError
 
 RIG = "brake-2dof"
 HIDDEN = "accel-sign"
@@ -36,9 +36,9 @@ def _line(msg: str) -> None:
 
 
 def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed: int = 1) -> dict:
-    from .config import load_rig
-    from .daemon import BenchProgress, run_sim_ramp
-    from .ramps import seed_ramp
+    from daq.config import load_rig
+    from daq.daemon.service import BenchProgress, run_sim_ramp
+    from daq.ramps import seed_ramp
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -76,12 +76,13 @@ def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed
 
 def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
     """The researcher's loop on a recording: compare, diagnose, add what is missing, until nothing is."""
-    from .config import load_rig
-    from .models.compare import compare
-    from .models.diagnose import diagnose
-    from .models.figures import diagnose_figure, history_figure
-    from .models.session import Session, load_data
-    from .models.spec import add_effect, save_model, seed_model
+    from daq.config import load_rig
+    from daq.io.loading import load_data
+    from daq.models.compare import compare
+    from daq.models.diagnose import diagnose
+    from daq.models.figures import diagnose_figure, history_figure
+    from daq.models.session import Session
+    from daq.models.spec import add_effect, save_model, seed_model
 
     cfg = load_rig(RIG)
     rec = load_data(rec_path, RIG)
@@ -128,7 +129,7 @@ def _entry(res: dict) -> dict:
 
 
 def _report(session, fitted, res: dict, folder: Path) -> None:
-    from .models.figures import compare_figure, spectrogram_figure
+    from daq.models.figures import compare_figure, spectrogram_figure
 
     folder.mkdir(exist_ok=True)
     compare_figure(session, fitted, res, folder / "compare.png")

@@ -2,7 +2,7 @@
 
 Three processes, as in the daemon: a publisher sends blocks of 8 float64 channels at a
 target rate (default 5 M samples/s, counting every channel value), the recorder
-(``python -m daq.recorder``) writes them to disk, and the online estimator subscribes
+(``python -m daq.streaming.recorder``) writes them to disk, and the online estimator subscribes
 to the same stream. A sample counts once it is in the closed file: the benchmark
 reads the file back and checks every block's content. Beside it, in the same run,
 raw pyzmq PUB/SUB with the same message sizes and no headers (the ceiling).
@@ -22,6 +22,12 @@ from pathlib import Path
 
 import numpy as np
 import zmq
+
+from daq.config import load_rig
+from daq.estimation.online import OnlineCfg, OnlineEstimator
+from daq.io.interchange import open_h5
+from daq.io.stream_format import StreamMeta
+from daq.streaming.bus import Publisher
 
 CHANNELS = 8
 BLOCK_SAMPLES = 6250  # per channel: 50 000 values = 400 kB per block
@@ -79,8 +85,6 @@ def raw_pyzmq(seconds: float = 3.0, endpoint: str = "tcp://127.0.0.1:5591") -> d
 
 def _paced_pub(endpoint: str, rate: float, seconds: float, go: "mp.Event", done: "mp.Event", out: "mp.Queue") -> None:
     """Publish probe blocks until ``go``, then ``rate`` values/s of the bench stream for ``seconds``."""
-    from .bus import Publisher
-    from .stream import StreamMeta
 
     # 500 blocks (200 MB) per subscriber at most: a lagging estimator drops and counts, never hoards memory
     pub = Publisher(endpoint, sndhwm=500)
@@ -119,8 +123,6 @@ def _paced_pub(endpoint: str, rate: float, seconds: float, go: "mp.Event", done:
 
 def _estimator_proc(endpoint: str, stop: "mp.Event", out: "mp.Queue") -> None:
     """The online estimator as its own, lower-priority process: a consumer that may drop, never stall."""
-    from .config import load_rig
-    from .estimation.online import OnlineCfg, OnlineEstimator
 
     os.nice(10)
     est = OnlineEstimator(load_rig("brake-2dof"), OnlineCfg(sub_endpoint=endpoint, streams=("can",), fit="thread"))
@@ -132,7 +134,6 @@ def _estimator_proc(endpoint: str, stop: "mp.Event", out: "mp.Queue") -> None:
 
 def bench_bus(seconds: float = 60.0, rate: float = 5e6, endpoint: str = "tcp://127.0.0.1:5592") -> dict:
     """Paced publisher -> recorder (own process) -> HDF5 file, with the online estimator subscribed."""
-    from .io.interchange import open_h5
 
     ctx = mp.get_context("spawn")
     go, done = ctx.Event(), ctx.Event()
@@ -142,7 +143,7 @@ def bench_bus(seconds: float = 60.0, rate: float = 5e6, endpoint: str = "tcp://1
     pub.start()
     work = Path(tempfile.mkdtemp(prefix="daq-bench-bus-"))
     path = work / "run.h5"
-    rec = subprocess.Popen([sys.executable, "-m", "daq.recorder", "--endpoint", endpoint, "--rig", "brake-2dof",
+    rec = subprocess.Popen([sys.executable, "-m", "daq.streaming.recorder", "--endpoint", endpoint, "--rig", "brake-2dof",
                             "-o", str(path), "--stream", "bench", "--stream", "probe"],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     est_stop = ctx.Event()

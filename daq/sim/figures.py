@@ -10,8 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .analysis.spectral import paper_spectrogram  # noqa: E402
-from .io.interchange import Recording, atomic_path  # noqa: E402
+from daq.io.interchange import Recording  # noqa: E402
+from daq.io.png import save_png  # noqa: E402
+from daq.signals import paper_spectrogram  # noqa: E402
 
 # the main displacement channel and its label, per rig
 MAIN_CHANNEL = {"brake-2dof": ("x1", "x1 [m]"), "belt-ndof": ("x1", "x1 [m]"),
@@ -68,6 +69,4 @@ def sim_figure(rec: Recording, path: str | Path, title: str = "") -> None:
     axs.set_xlabel("t [s]")
     axs.set_ylabel("f [Hz]")
     fig.suptitle(title or f"{rec.rig} simulation")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
+    save_png(fig, path, dpi=90)

@@ -6,8 +6,8 @@ interpreter lock each, so nothing starves the acquisition or the estimator)::
     sim bench (python -m sim_backends.process, --sim only; own session, OUTLIVES the daemon)
         |  ptys: motor regulator, serial sensor stream, thermocouple
     daemon (this process): drivers -> acquisition -> PUB bus; ramp runner; control socket; motor heartbeat
-        |-- estimator (python -m daq.estimator): SUB bus -> PUB estimates
-        '-- recorder  (python -m daq.recorder, one per recording): SUB bus + estimates -> HDF5
+        |-- estimator (python -m daq.daemon.estimator_process): SUB bus -> PUB estimates
+        '-- recorder  (python -m daq.streaming.recorder, one per recording): SUB bus + estimates -> HDF5
 
 Operators drive it through the control socket (``daq ctl``). On SIGTERM/SIGINT it
 ramps the belt down before it exits; if it dies instead, the regulator's watchdog
@@ -35,12 +35,17 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.config import config_text, load_rig
+from daq.errors import InputError
+from daq.io.stream_format import Block
+from daq.ramps import Ramp
+from daq.sim.effectset import parse_effect
+from daq.streaming.bus import Subscriber
+from drivers.factory import build_drivers
+from sim_backends.process import SimBenchProcess, cross_process_wiring
+
 from .acquisition import Acquisition, AcquisitionCfg
-from .bus import Subscriber
-from .config import config_text, load_rig
-from .errors import InputError
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
-from .stream import Block
 
 STANDSTILL = 1e-3  # [m/s]
 ROOT = Path(__file__).resolve().parent.parent  # where `python -m daq...` finds the packages
@@ -92,10 +97,10 @@ def _terminate(proc: subprocess.Popen, timeout: float) -> int | None:
 
 
 class EstimatorProcess:
-    """``python -m daq.estimator`` on the daemon's bus; its stats lines are kept for status."""
+    """``python -m daq.daemon.estimator_process`` on the daemon's bus; its stats lines are kept for status."""
 
     def __init__(self, rig: str, sub_endpoint: str, pub_endpoint: str, timeout: float) -> None:
-        self.proc = _popen(["daq.estimator", "--rig", rig, "--sub", sub_endpoint, "--pub", pub_endpoint,
+        self.proc = _popen(["daq.daemon.estimator_process", "--rig", rig, "--sub", sub_endpoint, "--pub", pub_endpoint,
                             "--parent-pid", str(os.getpid())], stdout=subprocess.PIPE, text=True)
         self.pid = self.proc.pid
         info = json.loads(_first_line(self.proc, timeout, "the estimator process"))
@@ -122,12 +127,12 @@ class EstimatorProcess:
 
 
 class RecorderProcess:
-    """``python -m daq.recorder`` for one run file; started by record_start, SIGTERM'd by record_stop."""
+    """``python -m daq.streaming.recorder`` for one run file; started by record_start, SIGTERM'd by record_stop."""
 
     def __init__(self, path: Path, rig_arg: str, endpoints: list[str], flush_s: float, timeout: float,
                  wait_stream: str | None = "motor") -> None:
         self.path = path
-        cmd = ["daq.recorder", "--endpoint", endpoints[0], "--rig", rig_arg, "-o", str(path), "--flush-s",
+        cmd = ["daq.streaming.recorder", "--endpoint", endpoints[0], "--rig", rig_arg, "-o", str(path), "--flush-s",
                repr(flush_s), "--parent-pid", str(os.getpid())]
         for ep in endpoints[1:]:
             cmd += ["--also", ep]
@@ -228,12 +233,10 @@ class Daemon:
 
     # --- life cycle
     def start(self) -> "Daemon":
-        from drivers.factory import build_drivers
 
         endpoints = None
         try:
             if self.cfg.sim:
-                from sim_backends.process import SimBenchProcess, cross_process_wiring
 
                 workdir = self.cfg.workdir or Path(tempfile.mkdtemp(prefix=f"daq-sim-{self.rig.rig}-"))
                 self.rig = cross_process_wiring(self.rig)
@@ -460,7 +463,6 @@ def run_sim_ramp(rig: str, ramp: "str | Path | Any", out: str | Path, *, effects
     ``progress_s`` with a :class:`BenchProgress`. Raises InputError for a ramp the rig cannot run
     (before any motion), RuntimeError if the ramp does not finish.
     """
-    from .ramps import Ramp
 
     out = Path(out)
     work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="daq-bench-"))
@@ -477,7 +479,6 @@ def run_sim_ramp(rig: str, ramp: "str | Path | Any", out: str | Path, *, effects
         def make(m, v, a, **kw):
             return RampRunner.from_file(m, path, v, a, **kw)
         label = path
-    from .sim.effectset import parse_effect
 
     for e in effects:  # bad input: InputError before anything starts
         parse_effect(e, "effects")

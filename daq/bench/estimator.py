@@ -24,6 +24,12 @@ import time
 
 import numpy as np
 
+from daq.config import load_rig
+from daq.estimation.online import OnlineCfg, OnlineEstimator
+from daq.io.stream_format import Block, StreamMeta
+from daq.sim.run import simulate
+from daq.streaming.bus import Publisher, Subscriber
+
 RATE_HZ = 10_000.0
 BLOCK = 100
 CHANNELS = ("x1", "phi", "vb", "vb_set", "temp", "spare1", "spare2", "spare3")
@@ -32,8 +38,6 @@ TARGET_P99_MS = 10.0
 
 def _signals(seconds: float) -> np.ndarray:
     """(n, 8) samples: a noisy simulated brake-2dof run at 10 kHz plus three spare channels."""
-    from .config import load_rig
-    from .sim.run import simulate
 
     rec = simulate(load_rig("brake-2dof"), duration=seconds, rate=RATE_HZ, seed=11)
     n = rec.t.size
@@ -43,8 +47,6 @@ def _signals(seconds: float) -> np.ndarray:
 
 def _publisher_main(q: mp.Queue, go: mp.Event, data: np.ndarray) -> None:
     """Child process: bind, wait for go, then publish the blocks at the rate of the clock."""
-    from .bus import Publisher
-    from .stream import StreamMeta
 
     pub = Publisher("tcp://127.0.0.1:0", sndhwm=100_000)
     q.put(pub.endpoint)
@@ -68,8 +70,6 @@ def _publisher_main(q: mp.Queue, go: mp.Event, data: np.ndarray) -> None:
 
 def _sink_main(endpoint: str, q: mp.Queue, ready: mp.Event, stop: mp.Event) -> None:
     """Child process: receive the estimates, measure input sent -> estimate received."""
-    from .bus import Subscriber
-    from .stream import Block
 
     sub = Subscriber(endpoint, streams=["estimator"], events=False, name="bench-sink")
     ready.set()
@@ -116,8 +116,6 @@ def _growth_ms(lat: list[float]) -> float:
 
 def _baseline(ctx, data: np.ndarray, seconds: float) -> dict:
     """Receive and decode only: the bus's own latency for the same blocks."""
-    from .bus import Subscriber
-    from .stream import Block
 
     proc, q, go, endpoint = _start_publisher(ctx, data)
     sub = Subscriber(endpoint, streams=["rig"], events=False, rcvhwm=100_000, name="bench-baseline")
@@ -141,8 +139,6 @@ def _baseline(ctx, data: np.ndarray, seconds: float) -> dict:
 
 def _estimator_run(ctx, data: np.ndarray, seconds: float) -> dict:
     """The OnlineEstimator on the same stream, a sink process on its output."""
-    from .config import load_rig
-    from .estimation.online import OnlineCfg, OnlineEstimator
 
     proc, q, go, endpoint = _start_publisher(ctx, data)
     est = OnlineEstimator(load_rig("brake-2dof"), OnlineCfg(sub_endpoint=endpoint, fit="process"))

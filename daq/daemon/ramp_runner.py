@@ -32,10 +32,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.errors import InputError
+from daq.ramps import Ramp, check_limits, load_ramp, ramp_table
 from drivers.motor import MotorDrive, MotorError, MotorUnavailable
-
-from .errors import InputError
-from .ramps import Ramp, check_limits, load_ramp, ramp_table
 
 State = Literal["idle", "lead-in", "running", "finished", "stopped", "estopped", "aborted"]
 

@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import InputError
+from daq.errors import InputError
 
 
 def _say(msg: str) -> None:
@@ -38,8 +38,8 @@ def _planes(text: str | None) -> list[tuple[float, float]] | None:
 
 def _config(args: argparse.Namespace, rec) -> tuple[object, str]:
     """The rig config: --rig-config, else the one stored with the recording, else rig_configs/brake-2dof."""
-    from .config import load_rig, parse_rig
-    from .errors import parse_toml
+    from daq.config import load_rig, parse_rig
+    from daq.errors import parse_toml
 
     if args.rig_config:
         return load_rig(args.rig_config), str(args.rig_config)
@@ -51,8 +51,8 @@ def _config(args: argparse.Namespace, rec) -> tuple[object, str]:
 
 
 def cmd_brake_run(args: argparse.Namespace) -> int:
-    from .analysis.paper001 import FIGURES, TransitionCfg, analyse_run
-    from .io.interchange import atomic_path, read_recording
+    from daq.analysis.paper001 import FIGURES, TransitionCfg, analyse_run
+    from daq.io.interchange import atomic_path, read_recording
 
     if not Path(args.data).is_file():
         raise InputError(str(args.data), "(file)", "no such file")

@@ -13,19 +13,20 @@ from __future__ import annotations
 
 import time
 
+from daq.config import load_rig
+from daq.models.diagnose import diagnose
+from daq.models.session import Session
+from daq.models.spec import seed_model
+from daq.ramps import ramp_table, seed_ramp
+from daq.sim.effectset import parse_effect
+from daq.sim.run import simulate
+
 DURATION = 600.0
 RATE = 1000.0
 HIDDEN = "stick-time"
 
 
 def bench_diagnose() -> dict:
-    from .config import load_rig
-    from .models.diagnose import diagnose
-    from .models.session import Session
-    from .models.spec import seed_model
-    from .ramps import ramp_table, seed_ramp
-    from .sim.effectset import parse_effect
-    from .sim.run import simulate
 
     cfg = load_rig("brake-2dof")
     ramp = ramp_table(seed_ramp(cfg.drive.V0_m_per_s, DURATION))

@@ -24,6 +24,7 @@ logs/ (daemon output), table.csv, table.json, coefficients.png, r2.png.
 from __future__ import annotations
 
 import argparse
+import csv
 import ctypes
 import datetime as _dt
 import json
@@ -40,10 +41,22 @@ import zlib
 from pathlib import Path
 from typing import Any, Callable, Literal
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+import tomli_w
+from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import InputError
+from daq.config import config_text, load_rig
+from daq.daemon.control import ControlClient
+from daq.errors import InputError
+from daq.io.interchange import atomic_path
+from daq.ramps import check_limits, ramp_table
+from daq.sim.effectset import parse_effect
+from sim_backends.process import request as sim_request
+
+from .paper002 import HOLD_S, SWEEP_S, UNITS, V_MIN, _save, analyse_drum_mu, cell_ramp, figures
 
 FORMAT = "friction-daq drum campaign 1"
 STATE = "campaign.json"
@@ -149,7 +162,6 @@ def cell_key(thrust: float, v0: float) -> str:
 
 def save_state(path: Path, st: CampaignState) -> None:
     """Write the state atomically: a kill leaves the previous or the new file, never half of one."""
-    from .io.interchange import atomic_path
 
     st.updated = _now()
     with atomic_path(path) as tmp:
@@ -200,9 +212,6 @@ def parse_list(text: str, flag: str, unit: str) -> list[float]:
 
 def make_cfg(args: argparse.Namespace) -> CampaignCfg:
     """The campaign's settings from the command line (defaults: the full 5 x 9 grid)."""
-    from .analysis.paper002 import HOLD_S, SWEEP_S, V_MIN
-    from .config import load_rig
-    from .sim.effectset import parse_effect
 
     cfg = load_rig(args.rig)
     if cfg.rig != "drum-pendulum":
@@ -235,9 +244,6 @@ def make_cfg(args: argparse.Namespace) -> CampaignCfg:
 
 def cell_programme(c: CampaignCfg, v0: float, rig=None):
     """One cell's Ramp, checked against the rig's drive limits (InputError naming --speeds)."""
-    from .analysis.paper002 import cell_ramp
-    from .config import load_rig
-    from .ramps import check_limits, ramp_table
 
     rig = rig or load_rig(c.rig)
     d = rig.drive
@@ -257,7 +263,6 @@ def new_state(c: CampaignCfg) -> CampaignState:
 
 def row_config(c: CampaignCfg, thrust: float, out: Path) -> Path:
     """A copy of the rig config with mechanics.thrust_N = P (what a thrust row's daemon runs)."""
-    from .config import config_text, load_rig
 
     cfg = load_rig(c.rig)
     cfg = cfg.model_copy(update={"mechanics": cfg.mechanics.model_copy(update={"thrust_N": float(thrust)})})
@@ -316,7 +321,6 @@ def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
     """End the daemon and bench a killed campaign left (by their recorded ids, only if they are ours)."""
     if info is None:
         return
-    from sim_backends.process import request as sim_request
 
     if _alive(info.pid) and "daemon" in _cmdline(info.pid):
         say(f"campaign: waiting for the daemon of the interrupted run (pid {info.pid}) to ramp down and exit")
@@ -377,7 +381,6 @@ class DaemonRow:
 
     def close(self) -> None:
         """SIGTERM (the daemon ramps down and closes any recording), then end the simulated bench."""
-        from sim_backends.process import request as sim_request
 
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
@@ -453,7 +456,6 @@ class Campaign:
 
     # --- main loop
     def run(self) -> CampaignState:
-        from .config import load_rig
 
         c = self.st.cfg
         rig = load_rig(c.rig)
@@ -497,9 +499,7 @@ class Campaign:
         return self.st
 
     def run_cell(self, cell: Cell, endpoint: str, label: str, programme_s: float, eta_rest: float) -> None:
-        import tomli_w
 
-        from .control import ControlClient
 
         c = self.st.cfg
         ramp = cell_programme(c, cell.v0_m_per_s)
@@ -551,8 +551,6 @@ class Campaign:
         self.save()
 
     def analyse(self, cell: Cell, rec: Path, head: str) -> None:
-        from .analysis.paper002 import analyse_drum_mu, figures
-        from .io.interchange import atomic_path
 
         try:
             res, series = analyse_drum_mu(rec, v_min=self.st.cfg.v_min_m_per_s)
@@ -655,9 +653,7 @@ def table_rows(st: CampaignState) -> list[dict[str, Any]]:
 
 
 def write_table(out: Path, st: CampaignState) -> tuple[Path, Path]:
-    import csv
 
-    from .io.interchange import atomic_path
 
     rows = table_rows(st)
     csv_path, json_path = out / "table.csv", out / "table.json"
@@ -674,7 +670,6 @@ def write_table(out: Path, st: CampaignState) -> tuple[Path, Path]:
 
 def _config_law(c: CampaignCfg) -> dict[str, float]:
     """The simulated rig's own law (3): its config's A, B, C, E and the seed effect's D (reference lines)."""
-    from .config import load_rig
 
     cfg = load_rig(c.rig)
     f = cfg.friction
@@ -684,12 +679,9 @@ def _config_law(c: CampaignCfg) -> dict[str, float]:
 
 def grid_figures(out: Path, st: CampaignState) -> list[Path]:
     """A-E against drum speed, one line per thrust, error bars = 1 standard error; R^2 likewise."""
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from .analysis.paper002 import UNITS, _save
 
     c = st.cfg
     done = [x for x in st.cells if x.status == "done" and x.result is not None]
@@ -732,7 +724,6 @@ def grid_figures(out: Path, st: CampaignState) -> list[Path]:
         ax.set_xscale("log")
         speeds = sorted(c.speeds_m_per_s)
         ax.set_xlim(speeds[0] * 1e3 / 1.25, speeds[-1] * 1e3 * 1.25)
-        from matplotlib.ticker import FixedLocator, NullFormatter, NullLocator
 
         ax.xaxis.set_major_locator(FixedLocator([v * 1e3 for v in speeds]))
         ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))

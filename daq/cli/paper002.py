@@ -10,12 +10,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .cli_models import print_json
+from .models import print_json
 
 
 def cmd_drum_mu(args: argparse.Namespace) -> int:
-    from .analysis.paper002 import GUARD_S, V_MIN, analyse_drum_mu, figures
-    from .io.interchange import atomic_path
+    from daq.analysis.paper002 import GUARD_S, V_MIN, analyse_drum_mu, figures
+    from daq.io.interchange import atomic_path
 
     res, series = analyse_drum_mu(args.data, rig=args.rig, v_min=V_MIN if args.v_min is None else args.v_min,
                                   guard_s=GUARD_S if args.guard is None else args.guard, mu1=args.mu1,
@@ -57,6 +57,6 @@ def register(sub: argparse._SubParsersAction, analyse: argparse._SubParsersActio
     p.add_argument("--to", dest="t_to", type=float, help="... to this time [s]")
     p.set_defaults(func=cmd_drum_mu)
 
-    from .campaign import register as register_campaign
+    from daq.analysis.campaign import register as register_campaign
 
     register_campaign(sub)

@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import InputError
+from daq.errors import InputError
 
 
 def _say(msg: str) -> None:
@@ -20,8 +20,8 @@ def _say(msg: str) -> None:
 
 
 def _runs(paths: list[str], rig_config: str | None, damping: float | None):
-    from .analysis.paper000 import prepare
-    from .io.interchange import read_recording
+    from daq.analysis.paper000 import prepare
+    from daq.io.interchange import read_recording
 
     runs = []
     for p in paths:
@@ -41,14 +41,14 @@ def _mass(args: argparse.Namespace, runs) -> int | None:
 
 
 def _write_json(path: Path, obj) -> None:
-    from .io.interchange import atomic_path
+    from daq.io.interchange import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.write_text(obj.model_dump_json(indent=2))
 
 
 def cmd_belt_law(args: argparse.Namespace) -> int:
-    from .analysis.paper000 import LAW, belt_law
+    from daq.analysis.paper000 import LAW, belt_law
 
     if args.damping is not None and not args.damping >= 0:  # also refuses nan
         raise InputError("--damping", "d", "must be >= 0")
@@ -61,7 +61,7 @@ def cmd_belt_law(args: argparse.Namespace) -> int:
     a = belt_law(runs, masses=None if m is None else [m], windows_per_mass=args.windows, progress=_say)
     res = a.result
     if args.report:
-        from .analysis.paper000_figures import belt_law_figure, belt_static_figure
+        from daq.analysis.paper000_figures import belt_law_figure, belt_static_figure
 
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
@@ -91,7 +91,7 @@ def cmd_belt_law(args: argparse.Namespace) -> int:
 
 
 def cmd_poincare(args: argparse.Namespace) -> int:
-    from .analysis.paper000 import poincare
+    from daq.analysis.paper000 import poincare
 
     if args.skip is not None and not args.skip >= 0:
         raise InputError("--skip", "skip", "must be >= 0 s")
@@ -105,7 +105,7 @@ def cmd_poincare(args: argparse.Namespace) -> int:
     a = poincare(run, 0 if m is None else m, skip_s=args.skip, kmax=args.kmax)
     res = a.result
     if args.report:
-        from .analysis.paper000_figures import poincare_figure
+        from daq.analysis.paper000_figures import poincare_figure
 
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)

@@ -15,16 +15,21 @@ import sys
 import time
 
 import numpy as np
+from scipy.integrate import solve_ivp
+
+from daq.config import load_rig
+from daq.physics import brake2dof
+from daq.physics.contact import N_AUX
+from daq.ramps import ramp_table, seed_ramp
+from daq.sim.effectset import effect_vector
+from daq.sim.rigs import make_sim
+from daq.sim.run import simulate
 
 SEED_DURATION = 45.0
 SEED_RATE = 1000.0
 
 
 def _seed_setup():
-    from .config import load_rig
-    from .ramps import ramp_table, seed_ramp
-    from .sim.effectset import effect_vector
-    from .sim.rigs import make_sim
 
     cfg = load_rig("brake-2dof")
     e, _ = effect_vector(cfg)
@@ -47,10 +52,7 @@ def run_kernel(duration: float = SEED_DURATION) -> tuple[float, np.ndarray]:
 
 def solve_ivp_baseline(duration: float) -> dict:
     """Plain solve_ivp of the same rhs (call with NUMBA_DISABLE_JIT=1)."""
-    from scipy.integrate import solve_ivp
 
-    from .physics import brake2dof
-    from .physics.contact import N_AUX
 
     cfg, sim, rt, rv = _seed_setup()
     s0 = sim.initial_state(float(rv[0]))
@@ -72,8 +74,6 @@ def solve_ivp_baseline(duration: float) -> dict:
 
 def run_end_to_end() -> float:
     """The whole `simulate()` call: integration, instruments (noise, quantisation, hold), metadata."""
-    from .config import load_rig
-    from .sim.run import simulate
 
     cfg = load_rig("brake-2dof")
     t0 = time.perf_counter()
@@ -88,7 +88,7 @@ def bench_sim(repeat: int = 5, baseline_duration: float = SEED_DURATION) -> dict
     e2e = min(run_end_to_end() for _ in range(repeat))
     _, states = run_kernel()
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    code = ("import json,sys; from daq.bench import solve_ivp_baseline; "
+    code = ("import json,sys; from daq.bench.sim import solve_ivp_baseline; "
             f"print(json.dumps(solve_ivp_baseline({baseline_duration!r})))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     base = json.loads(out.stdout.strip().splitlines()[-1])
@@ -114,28 +114,7 @@ def bench_sim(repeat: int = 5, baseline_duration: float = SEED_DURATION) -> dict
     }
 
 
-# name -> (module, benchmark function, report formatter); imported only when asked for
-BENCHES: dict[str, tuple[str, str, str]] = {
-    "sim": ("daq.bench", "bench_sim", "format_report"),
-    "can": ("daq.bench_can", "bench_can", "format_can"),
-    "serial": ("daq.bench_serial", "bench_serial", "format_serial"),
-    "estimator": ("daq.bench_estimator", "bench_estimator", "format_estimator"),
-    "bus": ("daq.bench_bus", "bench_bus", "format_bus"),
-    "diagnose": ("daq.bench_diagnose", "bench_diagnose", "format_diagnose"),
-}
-
-
-def run_bench(name: str) -> tuple[dict, str]:
-    """Run a registered benchmark; returns (JSON-able result, human report)."""
-    import importlib
-
-    mod_name, fn_name, fmt_name = BENCHES[name]
-    mod = importlib.import_module(mod_name)
-    result = getattr(mod, fn_name)()
-    return result, getattr(mod, fmt_name)(result)
-
-
-def format_report(r: dict) -> str:
+def format_sim(r: dict) -> str:
     lines = [f"benchmark {r['benchmark']}: {r['case']}"]
     if r["benchmark"] == "sim":
         lines += [

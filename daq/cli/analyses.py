@@ -1,6 +1,6 @@
 """``daq analyse ...`` and ``daq campaign``: the seed papers' own identification experiments.
 
-Each paper's analyses live in their own CLI module (cli_paper000/001/002) so they can be read,
+Each paper's analyses live in their own CLI module (daq/cli/paper000.py, paper001.py, paper002.py) so they can be read,
 and grow, independently; this module only gathers them under one ``analyse`` command.
 """
 
@@ -10,9 +10,9 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from .cli_paper000 import register as register_000
-    from .cli_paper001 import register as register_001
-    from .cli_paper002 import register as register_002
+    from .paper000 import register as register_000
+    from .paper001 import register as register_001
+    from .paper002 import register as register_002
 
     an = sub.add_parser("analyse", help="the seed papers' analyses on a recording (JSON + figures)")
     asub = an.add_subparsers(dest="analysis", required=True, metavar="ANALYSIS")

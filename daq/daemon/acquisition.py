@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from daq.bus import BusCfg, Publisher
 from daq.config import CanInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
-from daq.stream import BusEvent, StreamMeta
+from daq.io.stream_format import BusEvent, StreamMeta
+from daq.streaming.bus import BusCfg, Publisher
 from drivers.base import ClockSync, DriverEvent, Sample, SampleSource
 from drivers.factory import RigDrivers
 from drivers.motor import MotorError, MotorUnavailable, SerialMotorRegulator

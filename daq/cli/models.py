@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import InputError
+from daq.errors import InputError
 
 HISTORY = "daq-history.jsonl"
 
@@ -44,7 +44,7 @@ def _out_path(p: str, suffix: str, flag: str = "-o") -> Path:
 
 
 def cmd_model_init(args: argparse.Namespace) -> int:
-    from .models.spec import save_model, seed_model
+    from daq.models.spec import save_model, seed_model
 
     out = _out_path(args.output, ".toml")
     m = seed_model(args.rig)
@@ -55,7 +55,7 @@ def cmd_model_init(args: argparse.Namespace) -> int:
 
 
 def cmd_model_add(args: argparse.Namespace) -> int:
-    from .models.spec import add_effect, load_model, save_model
+    from daq.models.spec import add_effect, load_model, save_model
 
     m = load_model(args.model)
     path = args.effect if args.effect.endswith(".py") else None
@@ -71,7 +71,7 @@ def cmd_model_add(args: argparse.Namespace) -> int:
 
 
 def cmd_model_remove(args: argparse.Namespace) -> int:
-    from .models.spec import load_model, remove_effect, save_model
+    from daq.models.spec import load_model, remove_effect, save_model
 
     m = load_model(args.model)
     new = remove_effect(m, args.effect)
@@ -85,8 +85,8 @@ def cmd_model_remove(args: argparse.Namespace) -> int:
 
 
 def _session(args: argparse.Namespace):
-    from .models.session import Session
-    from .models.spec import load_model
+    from daq.models.session import Session
+    from daq.models.spec import load_model
 
     model = load_model(args.model)
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
@@ -97,7 +97,7 @@ def _session(args: argparse.Namespace):
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from .models.spec import FitInfo, save_model
+    from daq.models.spec import FitInfo, save_model
 
     out = _out_path(args.output, ".toml")
     model, s = _session(args)
@@ -130,9 +130,9 @@ def _append_history(path: Path, res: dict) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .models.compare import compare
-    from .models.figures import compare_figure, spectrogram_figure
-    from .models.spec import save_model
+    from daq.models.compare import compare
+    from daq.models.figures import compare_figure, spectrogram_figure
+    from daq.models.spec import save_model
 
     model, s = _session(args)
     _say(f"fitting {len(model.free_names())} free parameters")
@@ -168,8 +168,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    from .models.diagnose import diagnose
-    from .models.figures import diagnose_figure
+    from daq.models.diagnose import diagnose
+    from daq.models.figures import diagnose_figure
 
     model, s = _session(args)
     t0 = time.perf_counter()
@@ -197,7 +197,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_history(args: argparse.Namespace) -> int:
-    from .models.figures import history_figure
+    from daq.models.figures import history_figure
 
     path = Path(args.history)
     if not path.is_file():

@@ -17,8 +17,18 @@ import numpy as np
 import zmq
 from pydantic import BaseModel, ConfigDict, Field
 
-from .stream import (EVENT_PREFIX, SAMPLE_PREFIX, Block, BusEvent, StreamMeta, decode_block, decode_event,
-                     encode_block, encode_event, make_block)
+from daq.io.stream_format import (
+    EVENT_PREFIX,
+    SAMPLE_PREFIX,
+    Block,
+    BusEvent,
+    StreamMeta,
+    decode_block,
+    decode_event,
+    encode_block,
+    encode_event,
+    make_block,
+)
 
 ZERO_COPY_BYTES = 65536  # arrays larger than this are sent without copying
 

@@ -1,6 +1,6 @@
 """``daq daemon`` and ``daq ctl``: the operator daemon and its control client on the command line.
 
-Kept apart from daq/cli.py because the daemon's options (keys, endpoints, sim
+Kept apart from daq/cli/main.py because the daemon's options (keys, endpoints, sim
 faults) are many and only the operator needs them. See docs/daemon.md.
 
 Keys (``--keys DIR``), as written by ``daq ctl keygen DIR --operator NAME --observer NAME``:
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
+from daq.errors import InputError
 
 DEFAULT_CONTROL = "tcp://127.0.0.1:5570"
 DEFAULT_BUS = "tcp://127.0.0.1:5560"
@@ -93,10 +93,10 @@ def server_keys(keys: str | None) -> dict[str, Path | None]:
 def cmd_daemon(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from .config import load_rig
-    from .control import ControlCfg, ControlServer, check_endpoint_security
-    from .daemon import Daemon, DaemonCfg
-    from .sim.effectset import parse_effect
+    from daq.config import load_rig
+    from daq.daemon.control import ControlCfg, ControlServer, check_endpoint_security
+    from daq.daemon.service import Daemon, DaemonCfg
+    from daq.sim.effectset import parse_effect
 
     load_rig(args.rig)  # bad rig: InputError before anything starts
     for e in args.effect:
@@ -138,7 +138,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace):
-    from .control import ControlClient
+    from daq.daemon.control import ControlClient
 
     if args.keys is None:
         return ControlClient(args.endpoint, timeout_s=args.timeout)
@@ -312,7 +312,7 @@ def _follow(args: argparse.Namespace, c, path: str) -> int:
 
 
 def cmd_ctl_keygen(args: argparse.Namespace) -> int:
-    from .control import generate_keys
+    from daq.daemon.control import generate_keys
 
     d = Path(args.dir)
     if not (args.operator or args.observer):

@@ -30,7 +30,7 @@ import zmq.auth
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from zmq.auth.thread import ThreadAuthenticator
 
-from .errors import InputError
+from daq.errors import InputError
 
 Op = Literal["status", "ramp", "stop", "estop", "record_start", "record_stop", "note"]
 READ_ONLY_OPS: frozenset[str] = frozenset({"status"})

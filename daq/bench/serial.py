@@ -19,8 +19,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import serial
 
 from drivers.framing import CRC_INIT, SYNC, TIME_MODULUS, StreamChannel, crc16
+from drivers.serial_stream import BinaryStreamCfg, BinaryStreamDriver
+from sim_backends.pty_port import PtyPort
 
 BAUD = 921_600
 LINE_RATE = BAUD / 10  # 8N1: start + 8 data + stop bits per byte
@@ -52,7 +55,6 @@ def make_frames(seq0: int, n: int) -> bytes:
 
 def _writer(link: str, rate: float | None, ready, go, stop, release, result) -> None:
     """Child process: the device. Writes whole frames to its pty, flat out or paced at ``rate`` bytes/s."""
-    from sim_backends.pty_port import PtyPort
 
     port = PtyPort(link)
     block_frames = 1 << 14
@@ -124,7 +126,6 @@ class _Device:
 
 def _raw_reads(seconds: float) -> float:
     """Baseline: bytes/s of the same stream read with pyserial (in_waiting/read as the driver does), no decoding."""
-    import serial
 
     with _Device(None) as dev:
         port = serial.serial_for_url(dev.link, baudrate=BAUD, timeout=0.05)
@@ -156,7 +157,6 @@ def _raw_reads(seconds: float) -> float:
 
 def _driver_run(seconds: float, rate: float | None) -> dict:
     """The driver reading the stream over a pty for ``seconds``; then it drains and loss is counted."""
-    from drivers.serial_stream import BinaryStreamCfg, BinaryStreamDriver
 
     with _Device(rate) as dev:
         drv = BinaryStreamDriver(BinaryStreamCfg(url=dev.link, baudrate=BAUD, channels=CHANNELS), name="bench")
@@ -185,7 +185,6 @@ def _driver_run(seconds: float, rate: float | None) -> dict:
 
 def _decode_only(seconds: float) -> float:
     """Bytes/s of driver.decode on an in-memory stream (no I/O): the CPU cost alone."""
-    from drivers.serial_stream import BinaryStreamCfg, BinaryStreamDriver
 
     drv = BinaryStreamDriver(BinaryStreamCfg(url="loop://", channels=CHANNELS), name="decode-only")
     data = make_frames(0, 1 << 16)  # one full turn of the 16-bit sequence, so repeating it leaves no gap

@@ -1,51 +1,41 @@
-"""The online friction estimator (issue 4): public entry points; the parts live in daq/estimation/.
+"""The online friction estimator as its own process (``python -m daq.daemon.estimator_process``).
 
-* :func:`estimate_arrays` runs the algorithm over whole arrays (offline, tests);
-* :class:`FrictionEstimator` is the same algorithm fed block by block;
-* :class:`OnlineEstimator` puts it on the bus (subscribe, align, estimate, publish, fit).
-
-See daq/estimation/differentiate.py for the causal differentiator and its delay, and
-tests/test_estimator.py for the tolerances against the simulator's truth.
+The daemon starts it (daq/daemon/service.py, EstimatorProcess) so that the estimator's numerics
+never share a GIL with acquisition; the algorithm itself is in daq/estimation/ (online.py on the
+bus, core.py block by block).
 """
 
 from __future__ import annotations
 
-from .estimation.core import ArrayEstimate, EstimateBlock, EstimatorCfg, FrictionEstimator, estimate_arrays
-from .estimation.fit import FitResult
-from .estimation.online import OnlineCfg, OnlineEstimator, OnlineStats
-from .estimation.rigmodels import RigModel, rig_model
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+import time
 
-__all__ = ["ArrayEstimate", "EstimateBlock", "EstimatorCfg", "FitResult", "FrictionEstimator", "OnlineCfg",
-           "OnlineEstimator", "OnlineStats", "RigModel", "estimate_arrays", "rig_model"]
-
+from daq.config import load_rig
+from daq.estimation.online import OnlineCfg, OnlineEstimator
 
 # ----------------------------------------------------------------------------- as a process
 
 def _parent_gone(pid: int) -> bool:
     """True once the process that started us has died (we were re-parented)."""
-    import os
 
     return bool(pid) and os.getppid() != pid
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m daq.estimator``: the online estimator in its own process (the daemon starts it).
+    """``python -m daq.daemon.estimator_process``: the online estimator in its own process (the daemon starts it).
 
     stdout: ``{"ready": true, "endpoint": ...}`` once subscribed and warmed up, then one
     ``stats {...}`` line per ``--stats-s`` (OnlineStats plus blocks_per_s). Exits on
     SIGTERM/SIGINT, or when ``--parent-pid`` is no longer its parent (the daemon died).
     """
-    import argparse
-    import json
-    import os
-    import signal
-    import sys
-    import threading
-    import time
 
-    from .config import load_rig
 
-    ap = argparse.ArgumentParser(prog="python -m daq.estimator", description="the online friction estimator")
+    ap = argparse.ArgumentParser(prog="python -m daq.daemon.estimator_process", description="the online friction estimator")
     ap.add_argument("--rig", required=True)
     ap.add_argument("--sub", required=True, help="the sample bus to subscribe to")
     ap.add_argument("--pub", default="tcp://127.0.0.1:0", help="where to publish estimates")
@@ -79,6 +69,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    import sys as _sys
-
-    _sys.exit(main())
+    sys.exit(main())

@@ -1,4 +1,4 @@
-"""The crash-safe recorder: bus blocks and events -> one HDF5 file per run.
+"""The run file: bus blocks and events -> one HDF5 file per run, written in SWMR mode, flushed often.
 
 Why this shape: the file is written in HDF5 SWMR mode, so what is on disk is always a
 consistent file holding everything up to the last flush; the writer flushes every
@@ -12,36 +12,26 @@ milliseconds in which a kill leaves a file that ``daq.io.interchange.read_h5`` s
 opens (or ``daq.io.h5recover.recover`` repairs), and a reader that opens the file just
 then sees it as a finished file. Declare streams up front to avoid the reopen.
 
-Run as a process:
-    python -m daq.recorder --endpoint tcp://127.0.0.1:5560 --rig brake-2dof -o run.h5 [--flush-s 0.25]
-stdout: ``ready ENDPOINT PATH`` once subscribed, ``stream NAME`` when a stream's datasets exist;
-stderr: one progress line per second; SIGTERM/SIGINT close the file cleanly.
+The recorder process (daq/streaming/recorder.py) feeds it from the bus; ``daq import``
+(daq/io/importer.py) writes imported files through it too, so both make the same file.
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 import math
-import os
-import signal
-import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 import numpy as np
-import zmq
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from . import __version__
-from .bus import BusCfg, Subscriber
-from .config import RigConfig, config_text, load_rig
-from .errors import InputError
-from .io.interchange import EVENT_DTYPE, FORMAT_RUN, STREAM_RESERVED
-from .stream import Block, BusEvent, StreamMeta
+from daq import __version__
+from daq.config import RigConfig, config_text
+from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, STREAM_RESERVED
+from daq.io.stream_format import Block, BusEvent, StreamMeta
 
 SOFTWARE = f"friction-daq {__version__}"
 
@@ -56,20 +46,6 @@ class WriterCfg(BaseModel):
     min_chunk: int = Field(1024, ge=16)
     max_chunk: int = Field(65536, ge=16, description="elements per chunk (65536 float64 = 512 KiB)")
     event_chunk: int = Field(1024, ge=16)
-
-
-class RecorderCfg(BaseModel):
-    """The recorder process: where it listens and how deep its queue is."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    endpoint: str = BusCfg().endpoint
-    also: list[str] = Field(default_factory=list, description="more publishers to record (e.g. the estimator's)")
-    rcvhwm: int = Field(100_000, ge=1, description="blocks queued before the subscriber drops (deep: never drop)")
-    streams: list[str] | None = Field(None, description="stream names to record; None = all")
-    name: str = "recorder"
-    progress_s: float = Field(1.0, gt=0.0)
-    poll_s: float = Field(0.05, gt=0.0, le=0.25, description="receive timeout; also the idle flush tick")
-    drain_s: float = Field(2.0, ge=0.0, description="on stop, keep writing what is already queued, this long at most")
 
 
 class BlockRejected(ValueError):
@@ -313,187 +289,3 @@ class RunWriter:
         sink.created = True
 
 
-class Recorder:
-    """The bus side: one deep-queued subscriber feeding a RunWriter until stopped."""
-
-    def __init__(self, writer: RunWriter, cfg: RecorderCfg | None = None, log=None) -> None:
-        self.cfg = cfg or RecorderCfg()
-        self.writer = writer
-        self.sub = Subscriber(self.cfg.endpoint, streams=self.cfg.streams, events=True,
-                              rcvhwm=self.cfg.rcvhwm, name=self.cfg.name)
-        for ep in self.cfg.also:
-            self.sub.sock.connect(ep)
-        self.rejected = 0
-        self._stop = threading.Event()
-        self._log = log  # callable(str) for the progress lines, or None
-
-    def stop(self) -> None:
-        """Ask run() to return after writing what it has; safe from signal handlers and other threads."""
-        self._stop.set()
-
-    def run(self, duration: float | None = None) -> None:
-        """Receive and record until stop() or ``duration`` seconds; the caller closes the writer.
-
-        After stop() it drains what is already queued (up to ``drain_s``), so a clean stop
-        loses nothing that reached the recorder.
-        """
-        w, sub, poll = self.writer, self.sub, self.cfg.poll_s
-        end = None if duration is None else time.monotonic() + duration
-        t_start = last_log = time.monotonic()
-        next_log = t_start + self.cfg.progress_s
-        last_samples = w.samples_written
-        while not self._stop.is_set():
-            msg = sub.recv(poll)
-            if msg is None:
-                w.tick()
-            else:
-                self._handle(msg)
-            now = time.monotonic()
-            if now >= next_log:
-                if self._log is not None:
-                    rate = (w.samples_written - last_samples) / (now - last_log)
-                    self._log(f"recorder: {now - t_start:7.1f} s  {w.samples_written:>13,d} samples written  "
-                              f"{rate / 1e6:7.2f} M/s  lost blocks {sub.stats.lost_blocks}  "
-                              f"malformed {sub.stats.malformed}  rejected {self.rejected}")
-                last_samples, last_log = w.samples_written, now
-                next_log = now + self.cfg.progress_s
-            if end is not None and now >= end:
-                break
-        if self._stop.is_set():
-            self._drain()
-
-    def _handle(self, msg: Block | BusEvent) -> None:
-        if msg.__class__ is Block:
-            try:
-                self.writer.append(msg)
-            except BlockRejected as exc:
-                self.rejected += 1
-                self.writer.note("rejected", str(exc)[:500], source=self.cfg.name, count=1)
-        else:
-            self.writer.event(msg)
-
-    def _drain(self) -> None:
-        deadline = time.monotonic() + self.cfg.drain_s
-        while time.monotonic() < deadline:
-            msg = self.sub.recv(0)
-            if msg is None:
-                return
-            self._handle(msg)
-        self.writer.note("stop_truncated", f"queue not empty after {self.cfg.drain_s} s of draining: "
-                                           "blocks still queued at stop are not in the file", source=self.cfg.name)
-
-    def close(self) -> None:
-        self.sub.close()
-
-
-def _parse(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="python -m daq.recorder", description="record the sample bus to one HDF5 file")
-    ap.add_argument("--endpoint", default=BusCfg().endpoint, help="the publisher's endpoint")
-    ap.add_argument("--also", action="append", default=[], metavar="ENDPOINT",
-                    help="also record this publisher (repeatable; e.g. the estimator's endpoint)")
-    ap.add_argument("--parent-pid", type=int, default=0,
-                    help="close the file and exit once this process is no longer our parent (it died)")
-    ap.add_argument("--rig", required=True, help="rig id or config TOML (stored in the file)")
-    ap.add_argument("-o", "--output", required=True, help="OUT.h5")
-    ap.add_argument("--ramp", help="ramp file that drives this run (its text is stored)")
-    ap.add_argument("--flush-s", type=float, default=WriterCfg().flush_s)
-    ap.add_argument("--rcvhwm", type=int, default=RecorderCfg().rcvhwm)
-    ap.add_argument("--drain-s", type=float, default=RecorderCfg().drain_s,
-                    help="on SIGTERM, keep writing what is already queued for at most this long")
-    ap.add_argument("--stream", action="append", dest="streams", help="record only this stream (repeatable)")
-    ap.add_argument("--duration", type=float, help="stop after S seconds")
-    ap.add_argument("--note", action="append", default=[], help="operator note stored as an event (repeatable)")
-    ap.add_argument("--force", action="store_true", help="overwrite an existing output file")
-    return ap.parse_args(argv)
-
-
-def _setup(args: argparse.Namespace) -> tuple[RunWriter, Recorder]:
-    """Validate everything before creating the file, so bad input leaves nothing behind."""
-    out = Path(args.output)
-    if out.suffix.lower() not in (".h5", ".hdf5"):
-        raise InputError(str(out), "-o", "output must end in .h5 or .hdf5")
-    if out.exists() and not args.force:
-        raise InputError(str(out), "-o", "exists (use --force to overwrite)")
-    try:
-        wcfg = WriterCfg(flush_s=args.flush_s)
-        rcfg = RecorderCfg(endpoint=args.endpoint, also=args.also, rcvhwm=args.rcvhwm, streams=args.streams,
-                           drain_s=args.drain_s)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise InputError("recorder", "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None
-    cfg = load_rig(args.rig)
-    ramp_text = ""
-    if args.ramp:
-        try:
-            ramp_text = Path(args.ramp).read_text()
-        except OSError as exc:
-            raise InputError(args.ramp, "(file)", exc.strerror or str(exc)) from None
-    writer = RunWriter(wcfg)
-    try:
-        rec = Recorder(writer, rcfg, log=lambda line: _say(line, sys.stderr))
-    except zmq.ZMQError as exc:
-        raise InputError(args.endpoint, "--endpoint", str(exc)) from None
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        writer.open(out, cfg, ramp_text, {"endpoint": args.endpoint, "recorder_pid": os.getpid()})
-    except OSError as exc:
-        rec.close()
-        raise InputError(str(out), "-o", f"cannot create ({exc})") from None
-    writer.on_new_stream = lambda name: _say(f"stream {name}")
-    return writer, rec
-
-
-def _say(line: str, stream=None) -> None:
-    """Print, but never let a reader that went away (a killed parent's pipe) stop the recording."""
-    try:
-        print(line, file=stream or sys.stdout, flush=True)
-    except (BrokenPipeError, OSError, ValueError):
-        pass
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Record until SIGTERM/SIGINT (or --duration), then close the file cleanly."""
-    args = _parse(argv)
-    try:
-        writer, rec = _setup(args)
-    except InputError as exc:
-        print(str(exc), file=sys.stderr)
-        return 2
-    signal.signal(signal.SIGTERM, lambda *_: rec.stop())
-    signal.signal(signal.SIGINT, lambda *_: rec.stop())
-    writer.note("start", f"recording {args.endpoint}")
-    for text in args.note:
-        writer.note("note", text, source="operator")
-    orphaned = threading.Event()
-    if args.parent_pid:
-        def watch_parent() -> None:
-            while not rec._stop.wait(0.5):
-                if os.getppid() != args.parent_pid:
-                    orphaned.set()
-                    rec.stop()
-        threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
-    print(f"ready {args.endpoint} {writer.path}", flush=True)
-    rc = 0
-    try:
-        rec.run(args.duration)
-    except Exception as exc:  # a write error (disk full, ...): keep what is on disk, say why, exit non-zero
-        _say(f"recorder: stopped by {type(exc).__name__}: {exc}", sys.stderr)
-        rc = 1
-    try:
-        if orphaned.is_set():
-            writer.note("parent_gone", f"process {args.parent_pid} died; file closed")
-        writer.note("stop", f"{writer.samples_appended} samples, {rec.sub.stats.lost_blocks} lost blocks",
-                    count=rec.sub.stats.lost_blocks)
-        writer.close()
-    except Exception as exc:
-        _say(f"recorder: closing failed: {type(exc).__name__}: {exc}", sys.stderr)
-        rc = 1
-    finally:
-        rec.close()
-    _say(f"closed {writer.path} samples={writer.samples_written} lost_blocks={rec.sub.stats.lost_blocks}",
-         sys.stderr)
-    return rc
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import InputError
+from daq.errors import InputError
 
 
 def _print_json(obj: object) -> None:
@@ -27,7 +27,7 @@ def _progress(label: str):
 
 
 def cmd_rig_list(args: argparse.Namespace) -> int:
-    from .config import load_rig, rig_ids
+    from daq.config import load_rig, rig_ids
 
     for rid in rig_ids():
         cfg = load_rig(rid)
@@ -37,10 +37,10 @@ def cmd_rig_list(args: argparse.Namespace) -> int:
 
 def rig_summary(rig: str) -> dict:
     """Parameters, channels, effects and linearised eigenfrequencies of a rig (its seed configuration)."""
-    from .config import load_rig
-    from .physics.effects import CATALOG
-    from .sim.effectset import effect_vector
-    from .sim.rigs import make_sim
+    from daq.config import load_rig
+    from daq.physics.effects import CATALOG
+    from daq.sim.effectset import effect_vector
+    from daq.sim.rigs import make_sim
 
     cfg = load_rig(rig)
     e, active = effect_vector(cfg)
@@ -89,12 +89,12 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from .config import load_rig
-    from .figures import sim_figure
-    from .io.interchange import write_recording
-    from .ramps import load_ramp
-    from .sim.effectset import parse_effect
-    from .sim.run import simulate
+    from daq.config import load_rig
+    from daq.io.interchange import write_recording
+    from daq.ramps import load_ramp
+    from daq.sim.effectset import parse_effect
+    from daq.sim.figures import sim_figure
+    from daq.sim.run import simulate
 
     out = Path(args.output)
     if out.suffix.lower() not in (".h5", ".hdf5", ".csv"):
@@ -127,7 +127,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from .io.importer import import_file
+    from daq.io.importer import import_file
 
     import_file(args.file, args.rig, args.output)
     print(f"imported {args.file} -> {args.output}", file=sys.stderr)
@@ -135,7 +135,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .io.importer import export_csv
+    from daq.io.importer import export_csv
 
     export_csv(args.file, args.output)
     print(f"exported {args.file} -> {args.output}", file=sys.stderr)
@@ -146,7 +146,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import BENCHES, run_bench
+    from daq.bench import BENCHES, run_bench
 
     if args.name not in BENCHES:
         raise InputError("bench", args.name, f"unknown benchmark (have: {', '.join(BENCHES)})")
@@ -217,9 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true")
     bench.set_defaults(func=cmd_bench)
 
-    from .cli_analyses import register as register_analyses
-    from .cli_daemon import register as register_daemon
-    from .cli_models import register as register_models
+    from .analyses import register as register_analyses
+    from .daemon import register as register_daemon
+    from .models import register as register_models
 
     register_daemon(sub)
     register_models(sub)

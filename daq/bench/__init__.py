@@ -1,0 +1,28 @@
+"""Benchmarks (`daq bench NAME`): each prints its figures beside a baseline measured in the same run.
+
+One module per benchmark, found through one registry (:data:`BENCHES`), as python-can finds its
+interfaces: a module is imported only when its benchmark is asked for, so `daq --help` does not
+pay for numba, zmq and the simulators.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# name -> (module, benchmark function, report formatter); imported only when asked for
+BENCHES: dict[str, tuple[str, str, str]] = {
+    "sim": ("daq.bench.sim", "bench_sim", "format_sim"),
+    "can": ("daq.bench.can", "bench_can", "format_can"),
+    "serial": ("daq.bench.serial", "bench_serial", "format_serial"),
+    "estimator": ("daq.bench.estimator", "bench_estimator", "format_estimator"),
+    "bus": ("daq.bench.bus", "bench_bus", "format_bus"),
+    "diagnose": ("daq.bench.diagnose", "bench_diagnose", "format_diagnose"),
+}
+
+
+def run_bench(name: str) -> tuple[dict, str]:
+    """Run a registered benchmark; returns (JSON-able result, human report)."""
+    mod_name, fn_name, fmt_name = BENCHES[name]
+    mod = importlib.import_module(mod_name)
+    result = getattr(mod, fn_name)()
+    return result, getattr(mod, fmt_name)(result)

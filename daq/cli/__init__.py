@@ -1,0 +1,1 @@
+"""The ``daq`` command line: one module per command group; `main.py` registers every command."""

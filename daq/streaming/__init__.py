@@ -1,0 +1,1 @@
+"""What moves over sockets: the ZeroMQ sample bus and the recorder process."""
