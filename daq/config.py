@@ -3,19 +3,35 @@
 Units live in field names (``k1_N_per_m``); unknown fields are errors so a
 typo never silently falls back to a default. Values from the papers carry the
 paper's number in a comment of the TOML file; chosen values say "chosen".
+
+The ``[instruments]`` table holds one entry per instrument; its ``family`` says which of
+the settings models below it validates into. Each family's settings are declared here,
+once, and taken as they are by its driver (drivers/factory.py) and by its simulated
+instrument (sim_backends/hardware.py); only the endpoint differs, applied with
+``settings.with_endpoint(...)``. They live here, not in drivers/, because the rig config
+is the layer below the drivers (tests/test_layering.py): every simulation and analysis
+imports this module and must not pay for the transports (pyserial, python-can,
+cantools: ~0.2 s of imports), and drivers/serial_stream.py imports this module for the
+rig's channels. A driver's own config extends a family's settings with run-time-only
+fields instead of repeating them (``MotorCfg``, ``ThermocoupleCfg``); the CAN and
+binary-stream entries also name rig channels, which their drivers take in another form
+(a DBC selection, frame slots with scales), so those drivers share only the link:
+``CanBus`` (under ``CanBusCfg``) and ``StreamPort`` (under ``BinaryStreamCfg``).
+Which driver and which simulator serve a family: drivers/families.py and
+sim_backends/families.py.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Self, Union
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from daq.physics.effects import CATALOG
 
-from .errors import InputError, parse_toml, read_text
+from .errors import DaqError, InputError, parse_toml, read_text
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
 
@@ -24,7 +40,7 @@ class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class _FieldError(ValueError):
+class _FieldError(DaqError, ValueError):
     """A model-level check that knows the field it is about, so the InputError can name it."""
 
     def __init__(self, field: str, message: str) -> None:
@@ -77,50 +93,98 @@ class SensorsCfg(Strict):
     rate_Hz: float = Field(gt=0.0)
 
 
-class MotorInstrument(Strict):
+# ---------------------------------------------------------------- instrument families' settings
+
+Transport = Literal["serial", "can"]
+
+#: which endpoint keys override which settings, per transport (``daq daemon --sim`` passes them)
+ENDPOINT_KEYS: dict[Transport, tuple[str, ...]] = {"serial": ("url",), "can": ("interface", "channel", "bitrate")}
+
+
+class InstrumentSettings(Strict):
+    """What every family's entry has: its ``family`` tag (each subclass narrows it to one literal)."""
+
+    family: str
+    #: how the instrument is reached: a serial line (any pyserial URL) or a python-can bus
+    transport: ClassVar[Transport] = "serial"
+
+    def with_endpoint(self, endpoint: dict[str, Any]) -> Self:
+        """These settings pointed at another endpoint (only this transport's keys are taken)."""
+        update = {k: endpoint[k] for k in ENDPOINT_KEYS[self.transport] if k in endpoint}
+        return self.model_copy(update=update) if update else self
+
+    def rate_hz(self, sensor_rate_Hz: float) -> float | None:
+        """Samples per second per channel (``sensor_rate_Hz``: the rig's sensor rate); None if not sampled."""
+        return None
+
+
+class MotorSettings(InstrumentSettings):
     """The belt/drum motor regulator on a serial line (docs/protocols/motor-regulator.md)."""
 
-    family: Literal["motor-regulator"]
+    family: Literal["motor-regulator"] = "motor-regulator"
     url: str = Field(min_length=1, description="pyserial URL or device path")
     baudrate: int = Field(115200, gt=0)
-    watchdog_ms: int = Field(500, ge=50, le=10000)
-    heartbeat_s: float = Field(0.1, gt=0)
+    watchdog_ms: int = Field(500, ge=50, le=10000, description="regulator stops the belt after this silence")
+    heartbeat_s: float = Field(0.1, gt=0, description="heartbeat period; must be well below watchdog_ms")
     enabled: bool = True
 
 
-class CanInstrument(Strict):
-    """CAN sensors described by drivers/rig_sensors.dbc, on any python-can interface."""
+class CanBus(Strict):
+    """Which python-can bus: any interface python-can knows, and its channel."""
 
-    family: Literal["can-sensors"]
     interface: str = Field(min_length=1, description="python-can interface, e.g. socketcan, pcan, kvaser, virtual")
     channel: str = Field(min_length=1)
-    bitrate: int | None = Field(None, gt=0)
+    bitrate: int | None = Field(None, gt=0, description="bit/s; None leaves the interface's setting")
+
+
+class CanSettings(CanBus, InstrumentSettings):
+    """CAN sensors described by drivers/rig_sensors.dbc, on any python-can interface."""
+
+    family: Literal["can-sensors"] = "can-sensors"
     channels: list[str] = Field(min_length=1, description="interchange channels carried on this bus")
     enabled: bool = True
+    transport: ClassVar[Transport] = "can"
+
+    def rate_hz(self, sensor_rate_Hz: float) -> float | None:
+        return sensor_rate_Hz
 
 
-class StreamInstrument(Strict):
+class StreamPort(Strict):
+    """The serial line of a high-rate binary sensor stream."""
+
+    url: str = Field(min_length=1, description="pyserial URL or device path")
+    baudrate: int = Field(921_600, gt=0)
+
+
+class StreamSettings(StreamPort, InstrumentSettings):
     """A high-rate binary sensor stream on a serial line (docs/protocols/serial-stream.md)."""
 
-    family: Literal["serial-stream"]
-    url: str = Field(min_length=1)
-    baudrate: int = Field(921600, gt=0)
+    family: Literal["serial-stream"] = "serial-stream"
     channels: list[str] = Field(min_length=1)
     enabled: bool = True
 
+    def rate_hz(self, sensor_rate_Hz: float) -> float | None:
+        return sensor_rate_Hz
 
-class ThermocoupleInstrument(Strict):
+
+class ThermocoupleSettings(InstrumentSettings):
     """The slow thermocouple meter on a serial line (docs/protocols/thermocouple.md)."""
 
-    family: Literal["thermocouple"]
-    url: str = Field(min_length=1)
+    family: Literal["thermocouple"] = "thermocouple"
+    url: str = Field(min_length=1, description="pyserial URL or device path")
     baudrate: int = Field(9600, gt=0)
     poll_hz: float = Field(10.0, gt=0, le=50)
     enabled: bool = True
 
+    def rate_hz(self, sensor_rate_Hz: float) -> float | None:
+        return self.poll_hz
 
-Instrument = Annotated[Union[MotorInstrument, CanInstrument, StreamInstrument, ThermocoupleInstrument],
+
+#: an [instruments] entry: the settings model its ``family`` names (a new family: its model, and here)
+Instrument = Annotated[Union[MotorSettings, CanSettings, StreamSettings, ThermocoupleSettings],
                        Field(discriminator="family")]
+
+# ---------------------------------------------------------------- the rigs
 
 
 class BrakeMechanics(Strict):
@@ -219,7 +283,7 @@ class RigBase(Strict):
                     raise _FieldError(f"{table}.{name}", f"unknown effect (catalog: {', '.join(CATALOG)})")
                 if self.rig not in spec.rigs:
                     raise _FieldError(f"{table}.{name}", f"effect does not apply to {self.rig}")
-                keys = {ps.key for ps in spec.params_for(self.rig)}
+                keys = {ps.key for form in spec.form_names() for ps in spec.params_for(self.rig, form or None)}
                 for k in values:
                     if k not in keys:
                         raise _FieldError(f"{table}.{name}.{k}", f"unknown parameter (has {', '.join(sorted(keys))})")

@@ -1,4 +1,12 @@
-"""One error type for bad input, so every command can report it as one line naming file and field."""
+"""The project's own errors: one base, and one error type for bad input.
+
+``DaqError`` is the base of every exception this project raises on purpose, so a caller
+can tell "our error, with a message meant for a person" from a bug in a library. Classes
+that also keep a builtin base (``class MotorUnavailable(DaqError, ConnectionError)``) do
+so for the ``except ConnectionError`` clauses that existed before the base did.
+
+``InputError`` is bad input, so every command can report it as one line naming file and field.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +14,11 @@ import tomllib
 from pathlib import Path
 
 
-class InputError(Exception):
+class DaqError(Exception):
+    """Base of the project's own exceptions (drivers, config, daemon, analyses)."""
+
+
+class InputError(DaqError):
     """Bad user input (config, ramp, CSV, model file, CLI argument).
 
     The CLI prints ``str(err)`` on one line to stderr and exits with status 2.

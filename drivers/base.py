@@ -15,7 +15,7 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -220,6 +220,9 @@ class SampleSource(ABC):
 
     #: exception types that mean "the device went away" for this driver's transport
     transport_errors: tuple[type[BaseException], ...] = (OSError,)
+    #: every frame carries every channel (``names``) with one device time, as the binary serial
+    #: stream's do: the acquisition publishes such a source as one stream whose rows are frames
+    framed: ClassVar[bool] = False
 
     # --- the shared machinery
     def open(self) -> None:

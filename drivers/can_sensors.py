@@ -37,6 +37,8 @@ import cantools
 from cantools.database.can import Database, Message
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from daq.config import CanBus, CanSettings, RigConfig
+
 from .base import BackoffCfg, ClockSync, Sample, SampleSource, Unwrapper
 
 DBC_PATH = Path(__file__).with_name("rig_sensors.dbc")
@@ -80,14 +82,16 @@ def wall_minus_monotonic() -> float:
     return best
 
 
-class CanBusCfg(BaseModel):
-    """Which python-can bus to open; any interface python-can knows (socketcan, pcan, virtual, ...)."""
+class CanBusCfg(CanBus):
+    """Which python-can bus to open (interface, channel, bitrate: ``CanBus`` in daq/config.py), plus extra
+    keyword arguments for ``can.Bus`` that a rig config does not carry."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    interface: str = "socketcan"
-    channel: str = "can0"
-    bitrate: int | None = Field(None, gt=0, description="bit/s; None leaves the interface's setting")
     kwargs: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
+
+    @classmethod
+    def of(cls, settings: CanBus) -> CanBusCfg:
+        """The bus of a CAN instrument's settings (its interface, channel and bitrate)."""
+        return cls(**settings.model_dump(include=set(CanBus.model_fields)))
 
     def open(self, **extra: Any) -> can.BusABC:
         """Open the bus (raises can.CanError or OSError if it is not there)."""
@@ -175,6 +179,13 @@ class CanSensorDriver(SampleSource):
     """Streams samples from the CAN sensors of one rig; reconnects by itself after bus errors or silence."""
 
     transport_errors = (can.CanError, OSError)
+
+    @classmethod
+    def from_settings(cls, name: str, settings: CanSettings, rig: RigConfig) -> CanSensorDriver:
+        """The driver for one [instruments] entry (drivers/families.py registers it for can-sensors):
+        its bus, and the rig's DBC messages narrowed to the channels it carries."""
+        return cls(CanSensorCfg(name=name, bus=CanBusCfg.of(settings),
+                                select=SensorSelection(rig=rig.rig, channels=list(settings.channels))))
 
     def __init__(self, cfg: CanSensorCfg) -> None:
         """Resolve the selected DBC messages into per-message tracks and per-node clocks; the bus opens in open()."""

@@ -1,8 +1,10 @@
 """Build a rig's drivers from its config's ``[instruments]`` table.
 
-The config names real endpoints (serial device paths, CAN interface/channel);
-``endpoints`` overrides them per instrument, which is how ``--sim`` points the
-very same drivers at simulated instruments: the drivers never know the difference.
+Each entry's ``family`` finds its driver class through the one registry,
+drivers/families.py; the class builds itself from the entry's settings
+(``from_settings``). The config names real endpoints (serial device paths, CAN
+interface/channel); ``endpoints`` overrides them per instrument, which is how ``--sim``
+points the very same drivers at simulated instruments: the drivers never know the difference.
 """
 
 from __future__ import annotations
@@ -10,14 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from daq.config import CanInstrument, MotorInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
+from daq.config import ENDPOINT_KEYS, RigConfig
 from daq.errors import InputError
 
 from .base import SampleSource
-from .can_sensors import CanBusCfg, CanSensorCfg, CanSensorDriver, SensorSelection
-from .motor import MotorCfg, SerialMotorRegulator
-from .serial_stream import BinaryStreamCfg, BinaryStreamDriver, stream_channels
-from .thermocouple import ThermocoupleCfg, ThermocoupleDriver
+from .families import FAMILIES
+from .motor import SerialMotorRegulator
+
+#: every key an endpoint override may have (a family takes those of its transport)
+_ENDPOINT_KEYS = {k for keys in ENDPOINT_KEYS.values() for k in keys}
 
 
 @dataclass
@@ -50,23 +53,13 @@ def build_drivers(cfg: RigConfig, endpoints: dict[str, dict[str, Any]] | None = 
         if not (inst.enabled or include_disabled):
             continue
         over = endpoints.get(name, {})
-        unknown = set(over) - {"url", "interface", "channel", "bitrate"}
+        unknown = set(over) - _ENDPOINT_KEYS
         if unknown:
             raise InputError("endpoints", f"{name}.{sorted(unknown)[0]}", "unknown endpoint key")
-        if isinstance(inst, MotorInstrument):
-            out.motor = SerialMotorRegulator(MotorCfg(url=over.get("url", inst.url), baudrate=inst.baudrate,
-                                                      watchdog_ms=inst.watchdog_ms, heartbeat_s=inst.heartbeat_s),
-                                             name=name)
-        elif isinstance(inst, CanInstrument):
-            bus = CanBusCfg(interface=over.get("interface", inst.interface), channel=over.get("channel", inst.channel),
-                            bitrate=over.get("bitrate", inst.bitrate))
-            out.sources[name] = CanSensorDriver(CanSensorCfg(
-                name=name, bus=bus, select=SensorSelection(rig=cfg.rig, channels=list(inst.channels))))
-        elif isinstance(inst, StreamInstrument):
-            out.sources[name] = BinaryStreamDriver(BinaryStreamCfg(
-                url=over.get("url", inst.url), baudrate=inst.baudrate,
-                channels=stream_channels(cfg, inst.channels)), name=name)
-        elif isinstance(inst, ThermocoupleInstrument):
-            out.sources[name] = ThermocoupleDriver(ThermocoupleCfg(
-                url=over.get("url", inst.url), baudrate=inst.baudrate, poll_hz=inst.poll_hz), name=name)
+        family = FAMILIES[inst.family]
+        driver = family.driver_class().from_settings(name, inst.with_endpoint(over), cfg)
+        if family.role == "motor":
+            out.motor = driver
+        else:
+            out.sources[name] = driver
     return out

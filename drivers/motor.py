@@ -15,13 +15,16 @@ import time
 from abc import ABC, abstractmethod
 
 import serial
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from daq.config import MotorSettings, RigConfig
+from daq.errors import DaqError
 
 from .base import Backoff, BackoffCfg, DriverState, EventLog, close_quietly
 from .motor_protocol import ERR_CHECKSUM, TAG_MODULUS, LineBuffer, ProtocolError, Status, decode, encode, tag, untag
 
 
-class MotorError(RuntimeError):
+class MotorError(DaqError, RuntimeError):
     """The regulator refused a command (``ERR <code> <text>``)."""
 
     def __init__(self, code: int, text: str, command: str) -> None:
@@ -31,17 +34,15 @@ class MotorError(RuntimeError):
         super().__init__(f"regulator refused {command!r}: ERR {code} {text}")
 
 
-class MotorUnavailable(ConnectionError):
+class MotorUnavailable(DaqError, ConnectionError):
     """The regulator cannot be reached right now; the driver keeps reconnecting."""
 
 
-class MotorCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    url: str = Field(description="pyserial URL or device path")
-    baudrate: int = Field(115200, gt=0)
+class MotorCfg(MotorSettings):
+    """The regulator's settings (url, baudrate, watchdog, heartbeat: ``MotorSettings`` in daq/config.py) plus the
+    driver's run-time-only fields."""
+
     timeout_s: float = Field(0.25, gt=0, description="reply timeout per request")
-    heartbeat_s: float = Field(0.1, gt=0, description="heartbeat period; must be well below watchdog_ms")
-    watchdog_ms: int = Field(500, ge=50, le=10000, description="regulator stops the belt after this silence")
     retries: int = Field(2, ge=0, description="re-sends of a request whose reply was corrupted")
     backoff: BackoffCfg = BackoffCfg()
 
@@ -82,6 +83,11 @@ class MotorDrive(ABC):
 
 
 class SerialMotorRegulator(MotorDrive):
+    @classmethod
+    def from_settings(cls, name: str, settings: MotorSettings, rig: RigConfig) -> SerialMotorRegulator:
+        """The driver for one [instruments] entry (drivers/families.py registers it for motor-regulator)."""
+        return cls(MotorCfg(**settings.model_dump()), name=name)
+
     def __init__(self, cfg: MotorCfg, name: str = "motor") -> None:
         self.cfg = cfg
         self.name = name

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from daq.errors import DaqError
+
 EOL = b"\r\n"
 
 # error codes of ``ERR <code> <text>`` replies
@@ -23,7 +25,7 @@ STATES = ("DISABLED", "RUNNING", "STOPPING", "ESTOP", "WATCHDOG")
 TAG_MODULUS = 10000  # request tags run 0..9999 and wrap
 
 
-class ProtocolError(ValueError):
+class ProtocolError(DaqError, ValueError):
     """A line that is not a valid protocol line (bad framing or checksum)."""
 
 

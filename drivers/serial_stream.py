@@ -10,20 +10,18 @@ import time
 from typing import Iterable
 
 import serial
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
-from daq.config import RigConfig
+from daq.config import RigConfig, StreamPort, StreamSettings
 
 from .base import BackoffCfg, Sample, SampleSource, Unwrapper, close_quietly
 from .framing import MAX_CHANNELS, TIME_MODULUS, TIME_UNIT_S, FrameDecoder, SeqTracker, StreamChannel, scale_for_lsb
 
 
-class BinaryStreamCfg(BaseModel):
-    """Where the stream is and what its frames carry; must match the device's configuration."""
+class BinaryStreamCfg(StreamPort):
+    """Where the stream is (url, baudrate: ``StreamPort`` in daq/config.py) and what its frames carry; must match
+    the device's configuration."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    url: str = Field(min_length=1, description="pyserial URL or device path")
-    baudrate: int = Field(921_600, gt=0)
     channels: list[StreamChannel] = Field(min_length=1, max_length=MAX_CHANNELS)
     max_read_bytes: int = Field(1 << 16, ge=64, description="cap on one read, bounds the latency of a call")
 
@@ -51,6 +49,14 @@ class BinaryStreamDriver(SampleSource):
     """Reads, checks and decodes the frame stream; counts garbage, bad CRCs and lost frames; reconnects."""
 
     transport_errors = (serial.SerialException, OSError)
+    framed = True
+
+    @classmethod
+    def from_settings(cls, name: str, settings: StreamSettings, rig: RigConfig) -> BinaryStreamDriver:
+        """The driver for one [instruments] entry (drivers/families.py registers it for serial-stream):
+        its port, and frame slots for the rig channels it carries."""
+        port = settings.model_dump(include=set(StreamPort.model_fields))
+        return cls(BinaryStreamCfg(**port, channels=stream_channels(rig, settings.channels)), name=name)
 
     def __init__(self, cfg: BinaryStreamCfg, name: str = "serial-stream", backoff: BackoffCfg | None = None) -> None:
         super().__init__(name, backoff)

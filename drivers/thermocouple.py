@@ -6,7 +6,10 @@ import re
 import time
 
 import serial
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from daq.config import RigConfig, ThermocoupleSettings
+from daq.errors import DaqError
 
 from .base import BackoffCfg, Sample, SampleSource, close_quietly
 
@@ -21,13 +24,10 @@ REPLY = re.compile(rb"^\s*([+-]?\d{1,6}(?:\.\d{1,4})?)\s*$")
 MAX_LINE = 64
 
 
-class ThermocoupleCfg(BaseModel):
-    """Port, poll rate and reply timeout of one meter."""
+class ThermocoupleCfg(ThermocoupleSettings):
+    """One meter's settings (port, baud rate, poll rate: ``ThermocoupleSettings`` in daq/config.py) plus the driver's
+    run-time-only fields: reply timeout, channel name, query, when to give the port up."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    url: str = Field(min_length=1, description="pyserial URL or device path")
-    baudrate: int = Field(9600, gt=0)
-    poll_hz: float = Field(10.0, gt=0, le=50)
     timeout_s: float = Field(0.25, gt=0, le=5, description="wait for the reply line after a query")
     channel: str = "temp"
     command: str = "TEMP?"
@@ -35,7 +35,7 @@ class ThermocoupleCfg(BaseModel):
                                                                  "is gone and the port is reopened (0 = never)")
 
 
-class DeviceSilent(TimeoutError):
+class DeviceSilent(DaqError, TimeoutError):
     """Too many polls without an answer: treated like a lost port so the base class reopens it."""
 
 
@@ -43,6 +43,11 @@ class ThermocoupleDriver(SampleSource):
     """Polls the meter at poll_hz; a timeout or a garbled or ERR reply is a frame error; a lost port reconnects."""
 
     transport_errors = (serial.SerialException, OSError) + _TERMIOS_ERRORS
+
+    @classmethod
+    def from_settings(cls, name: str, settings: ThermocoupleSettings, rig: RigConfig) -> ThermocoupleDriver:
+        """The driver for one [instruments] entry (drivers/families.py registers it for thermocouple)."""
+        return cls(ThermocoupleCfg(**settings.model_dump()), name=name)
 
     def __init__(self, cfg: ThermocoupleCfg, name: str = "thermocouple", backoff: BackoffCfg | None = None) -> None:
         super().__init__(name, backoff)

@@ -17,7 +17,7 @@ import can
 import numpy as np
 from cantools.database.can import Message, Signal
 
-from daq.config import ChannelCfg
+from daq.config import CanSettings, ChannelCfg
 from drivers.can_sensors import (
     SEQ_MODULUS,
     SEQ_SIGNAL,
@@ -31,6 +31,7 @@ from drivers.can_sensors import (
 )
 
 from .instrument import DeviceClock, Faults, SimInstrument
+from .pty_port import PtyPort
 from .realtime import RealtimeRig, Tick
 
 FRAME_BITS = 125  # an 8-byte classic frame with an 11-bit id: 111 bits plus typical stuff bits and the gap
@@ -39,6 +40,14 @@ NOMINAL_BITRATE = 1_000_000  # for the transmit-time model when the bus config l
 
 class SimCanSensors(SimInstrument):
     """The CAN sensors of one rig, fed by a RealtimeRig, sharing one device clock."""
+
+    @classmethod
+    def from_settings(cls, rig: RealtimeRig, name: str, settings: CanSettings, *, port: PtyPort | None,
+                      clock: DeviceClock, seed: int) -> SimCanSensors:
+        """The sensors for one [instruments] entry (sim_backends/families.py registers it): the channels it
+        carries, on its bus (no ``port``: CAN needs none)."""
+        return cls(rig, CanBusCfg.of(settings), SensorSelection(rig=rig.cfg.rig, channels=list(settings.channels)),
+                   name=name, clock=clock, seed=seed)
 
     def __init__(self, rig: RealtimeRig, bus: CanBusCfg, select: SensorSelection | None = None,
                  channels: dict[str, ChannelCfg] | None = None, *, name: str = "sim-can",

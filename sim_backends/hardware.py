@@ -2,7 +2,9 @@
 
 Serial instruments get a real pty each (behind a stable link in ``workdir``), CAN
 sensors a python-can bus (the ``virtual`` interface unless told otherwise).
-``endpoints()`` tells the driver factory where to connect; nothing else changes.
+Each instrument is built by the simulator its family registers (sim_backends/families.py)
+from the rig config's entry pointed at that endpoint. ``endpoints()`` tells the driver
+factory where to connect; nothing else changes.
 """
 
 from __future__ import annotations
@@ -12,17 +14,15 @@ import os
 from pathlib import Path
 from typing import Any
 
-from daq.config import CanInstrument, MotorInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
+from daq.config import RigConfig
 from daq.sim.effectset import EffectRequest
-from drivers.can_sensors import CanBusCfg, SensorSelection
+from drivers.families import FAMILIES
 
-from .can_sensors import SimCanSensors
+from .families import simulator_class
 from .instrument import DeviceClock, SimInstrument
 from .motor import SimMotorRegulator
 from .pty_port import PtyPort
 from .realtime import RealtimeRig
-from .serial_stream import SimSerialStream
-from .thermocouple import SimThermocouple
 
 _bus_ids = itertools.count()
 
@@ -41,24 +41,19 @@ class SimulatedHardware:
         channel = can_channel or f"sim-{cfg.rig}-{os.getpid()}-{next(_bus_ids)}"
         for k, (name, inst) in enumerate(cfg.instruments.items()):
             clock = DeviceClock(offset_s=100.0 * (k + 1), drift_ppm=clock_drift_ppm)
-            if isinstance(inst, CanInstrument):
-                bus = CanBusCfg(interface=can_interface, channel=channel, bitrate=inst.bitrate)
-                self.instruments[name] = SimCanSensors(
-                    self.rig, bus, SensorSelection(rig=cfg.rig, channels=list(inst.channels)), name=name,
-                    clock=clock, seed=seed + k)
-                self._endpoints[name] = {"interface": can_interface, "channel": channel}
-                continue
-            port = self.ports[name] = PtyPort(self.workdir / name)
-            self._endpoints[name] = {"url": str(port.link)}
-            if isinstance(inst, MotorInstrument):
-                self.motor = SimMotorRegulator(self.rig, port, seed=seed + k)
-            elif isinstance(inst, StreamInstrument):
-                self.instruments[name] = SimSerialStream(self.rig, port, names=tuple(inst.channels),
-                                                         baudrate=inst.baudrate, name=name, clock=clock,
-                                                         seed=seed + k)
-            elif isinstance(inst, ThermocoupleInstrument):
-                self.instruments[name] = SimThermocouple(self.rig, port, name=name, clock=clock, seed=seed + k,
-                                                         baudrate=inst.baudrate)
+            port: PtyPort | None = None
+            if inst.transport == "can":
+                endpoint: dict[str, Any] = {"interface": can_interface, "channel": channel}
+            else:
+                port = self.ports[name] = PtyPort(self.workdir / name)
+                endpoint = {"url": str(port.link)}
+            self._endpoints[name] = endpoint
+            sim = simulator_class(inst.family).from_settings(self.rig, name, inst.with_endpoint(endpoint), port=port,
+                                                             clock=clock, seed=seed + k)
+            if FAMILIES[inst.family].role == "motor":
+                self.motor = sim
+            else:
+                self.instruments[name] = sim
 
     def endpoints(self) -> dict[str, dict[str, Any]]:
         """Per-instrument overrides for drivers.factory.build_drivers."""

@@ -14,6 +14,7 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.config import MotorSettings
 from drivers.motor_protocol import (
     ERR_CHECKSUM,
     ERR_LATCHED,
@@ -29,6 +30,7 @@ from drivers.motor_protocol import (
     untag,
 )
 
+from .instrument import DeviceClock
 from .pty_port import PtyPort
 from .realtime import RealtimeRig
 
@@ -54,6 +56,13 @@ class RegulatorCfg(BaseModel):
 
 
 class SimMotorRegulator:
+    @classmethod
+    def from_settings(cls, rig: RealtimeRig, name: str, settings: MotorSettings, *, port: PtyPort | None,
+                      clock: DeviceClock, seed: int) -> SimMotorRegulator:
+        """The regulator for one [instruments] entry (sim_backends/families.py registers it): on ``port``, with
+        the rig's drive limits; it has no device clock, and its watchdog default is its own (RegulatorCfg)."""
+        return cls(rig, port, seed=seed)
+
     def __init__(self, rig: RealtimeRig, port: PtyPort, cfg: RegulatorCfg | None = None, seed: int = 0) -> None:
         self.rig = rig
         self.port = port

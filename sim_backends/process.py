@@ -39,7 +39,7 @@ from typing import Any
 
 import zmq
 
-from daq.config import CanInstrument, RigConfig, StreamInstrument, load_rig, parse_rig
+from daq.config import CanSettings, RigConfig, StreamSettings, load_rig, parse_rig
 from daq.errors import InputError
 from daq.sim.effectset import parse_effect
 
@@ -54,7 +54,7 @@ def cross_process_wiring(cfg: RigConfig) -> RigConfig:
     A disabled serial-stream instrument that carries exactly those channels is enabled (the
     rig configs' ``laser_serial``); otherwise one named ``<can>_serial`` is made for them.
     """
-    cans = {n: i for n, i in cfg.instruments.items() if isinstance(i, CanInstrument) and i.enabled}
+    cans = {n: i for n, i in cfg.instruments.items() if isinstance(i, CanSettings) and i.enabled}
     if not cans:
         return cfg
     data = cfg.model_dump(mode="json", exclude_none=True)
@@ -65,7 +65,7 @@ def cross_process_wiring(cfg: RigConfig) -> RigConfig:
         chans = [c for c in can.channels
                  if not (n_masses and c[:1] == "x" and c[1:].isdigit() and int(c[1:]) > n_masses)]
         alt = next((n for n, i in cfg.instruments.items()
-                    if isinstance(i, StreamInstrument) and not i.enabled and set(i.channels) == set(chans)), None)
+                    if isinstance(i, StreamSettings) and not i.enabled and set(i.channels) == set(chans)), None)
         if alt is not None:
             insts[alt]["enabled"] = True
         else:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from daq.config import StreamSettings
 from drivers.framing import RAW_MAX, RAW_MIN, SYNC, TIME_MODULUS, FrameCodec, StreamChannel, scale_for_lsb
 
 from .instrument import DeviceClock, Faults, SimInstrument
@@ -60,6 +61,14 @@ class SimSerialStream(SimInstrument):
     sync with a plausible channel count) before a frame; ``drop_prob`` skips a frame
     while its sequence number is still used up, as a device with a full buffer would.
     """
+
+    @classmethod
+    def from_settings(cls, rig: RealtimeRig, name: str, settings: StreamSettings, *, port: PtyPort | None,
+                      clock: DeviceClock, seed: int) -> SimSerialStream:
+        """The stream for one [instruments] entry (sim_backends/families.py registers it): its channels at its
+        baud rate on ``port``."""
+        return cls(rig, port, names=tuple(settings.channels), baudrate=settings.baudrate, name=name, clock=clock,
+                   seed=seed)
 
     def __init__(self, rig: RealtimeRig, port: PtyPort, names: tuple[str, ...] = ("x1", "phi"),
                  channels: list[StreamChannel] | None = None, baudrate: int = 921_600, name: str = "laser",

@@ -7,6 +7,8 @@ import threading
 import time
 from dataclasses import dataclass
 
+from daq.config import ThermocoupleSettings
+
 from .instrument import DeviceClock, Faults, SimInstrument
 from .pty_port import PtyPort
 from .realtime import RealtimeRig, Tick
@@ -36,6 +38,13 @@ class SimThermocouple(SimInstrument):
     Fault switches: ``garble_next`` / ``silent_next`` / ``error_next`` spoil that many coming
     TEMP? replies; ``Faults.garbage_prob`` / ``Faults.drop_prob`` do it at random.
     """
+
+    @classmethod
+    def from_settings(cls, rig: RealtimeRig, name: str, settings: ThermocoupleSettings, *, port: PtyPort | None,
+                      clock: DeviceClock, seed: int) -> SimThermocouple:
+        """The meter for one [instruments] entry (sim_backends/families.py registers it), at its baud rate on
+        ``port``."""
+        return cls(rig, port, name=name, clock=clock, seed=seed, baudrate=settings.baudrate)
 
     def __init__(self, rig: RealtimeRig, port: PtyPort, channel: str = "temp", name: str = "thermocouple",
                  clock: DeviceClock | None = None, faults: Faults | None = None, seed: int = 0,

@@ -12,6 +12,7 @@ D and E are tightly identified (se ~1 %), so those are what the cells are checke
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -23,8 +24,11 @@ from pathlib import Path
 import h5py
 import pytest
 
-from daq.analysis.campaign import _alive, _cmdline, load_state
+from daq.analysis.campaign.state import CampaignCfg, load_state, new_state, save_state
+from daq.analysis.campaign.supervision import _alive, _cmdline
+from daq.cli.campaign import _confirm_factory
 from daq.cli.main import main
+from daq.errors import InputError
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUE = {"D": 1.5, "E": 0.09981645}
@@ -171,8 +175,6 @@ def test_bad_grid_and_state_exit_2(tmp_path, capsys):
 
 def test_resume_refuses_another_grid(tmp_path, capsys):
     """A stored campaign is resumed as it was: a different grid into the same --out is refused."""
-    from daq.analysis.campaign import CampaignCfg, new_state, save_state
-
     out = tmp_path / "c"
     out.mkdir()
     cfg = CampaignCfg(rig="drum-pendulum", thrusts_N=[20.0], speeds_m_per_s=[0.012], hold_s=10, sweep_s=30,
@@ -185,11 +187,6 @@ def test_resume_refuses_another_grid(tmp_path, capsys):
 
 def test_real_hardware_asks_the_operator_for_each_thrust(monkeypatch, capsys):
     """Without --sim the thrust is set by hand: the campaign asks and waits; no operator -> exit 2 path."""
-    import io
-
-    from daq.analysis.campaign import _confirm_factory
-    from daq.errors import InputError
-
     said: list[str] = []
     monkeypatch.setattr("sys.stdin", io.StringIO("\n"))
     _confirm_factory(False, said.append)(35.67)

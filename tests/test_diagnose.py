@@ -15,6 +15,7 @@ import sys
 import pytest
 
 from daq.config import load_rig
+from daq.models.candidates import candidates_for
 from daq.models.diagnose import diagnose
 from daq.models.session import Session
 from daq.models.spec import remove_effect, seed_model
@@ -108,4 +109,8 @@ def test_seed_model_without_normal_load_gets_it_back_and_clean_data_gets_nothing
     d = diagnose(s, seed_model("brake-2dof"), base=None)
     assert not d.found, d.summary
     j = d.as_json(s)
-    assert j["missing_effect_found"] is False and len(j["candidates"]) == 7
+    assert j["missing_effect_found"] is False and j["sequence"] == []
+    # every candidate is listed once: each lacking catalog effect in each of its forms, and the mechanics
+    labels = sorted(c["label"] for c in j["candidates"])
+    assert labels == sorted(c.label for c in candidates_for(seed_model("brake-2dof")))
+    assert len(labels) == 16 and "stick-time (log)" in labels and "mechanics.k1_N_per_m" in labels

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import pytest
+import serial
 
 from daq.config import load_rig
 from drivers.base import DriverState
@@ -179,8 +180,6 @@ def test_a_late_reply_is_recognised_by_its_tag_and_never_answers_a_later_command
 def test_a_write_timeout_is_a_retry_not_a_lost_port(bench, monkeypatch):
     """pyserial raises a write timeout after a complete write when the thread was descheduled past
     write_timeout; that is a starved host, not a pulled cable, and must not drop the link."""
-    import serial
-
     rig, port, sim, drv = bench
     drv.stop_heartbeat()
     real_write = drv._port.write

@@ -7,17 +7,18 @@ import json
 
 import numpy as np
 import pytest
+from scipy import signal as sps
+from scipy.signal import find_peaks
 
-from daq.analysis.paper001 import (
-    BIAS_TOL,
-    TransitionCfg,
-    analyse_run,
-    brake_params,
-    detect_transitions,
-    friction_series,
-    kappas,
-)
+from daq.analysis.paper001.analysis import analyse_run
+from daq.analysis.paper001.friction import BIAS_TOL, brake_params, friction_series, kappas
+from daq.analysis.paper001.transitions import TransitionCfg, detect_transitions
+from daq.cli.main import main
+from daq.errors import InputError
+from daq.io.interchange import write_recording
 from daq.physics import brake2dof
+from daq.ramps import ramp_table, seed_ramp
+from daq.sim.run import simulate
 from tests.helpers import expect_error
 
 
@@ -28,8 +29,6 @@ def _with_law(cfg, mu0: float, gamma: float):
 @pytest.fixture(scope="module")
 def runs(brake_cfg):
     """Simulated seed-ramp runs (with sensor noise) whose true law differs from the config the analysis gets."""
-    from daq.sim.run import simulate
-
     cases = {
         "seed-1kHz": (0.5, 3.0, 1000.0, 45.0),
         "low-1kHz": (0.42, 2.2, 1000.0, 30.0),
@@ -156,8 +155,6 @@ def test_tone_switching_to_period_two_is_found_at_its_time():
 
 def test_noise_strip_is_flagged_irregular_and_widening():
     """Tone with 12..16 s replaced by low-passed noise of the same rms: irregular there (+-0.75 s), widening."""
-    from scipy import signal as sps
-
     rng = np.random.default_rng(2)
     t = np.arange(0, 30, 1 / FS_TEST)
     x = np.sin(2 * np.pi * F_TONE * t)
@@ -239,17 +236,12 @@ def test_simulated_run_is_quasi_steady_where_the_truth_is_periodic(runs, analyse
 
 def test_period_doubling_in_the_160s_run(brake_cfg):
     """Our physics on the paper's V0 = 0.25, Tmax = 160 run: period doubling where the true peaks alternate."""
-    from daq.ramps import ramp_table, seed_ramp
-    from daq.sim.run import simulate
-
     rec = simulate(brake_cfg, ramp=ramp_table(seed_ramp(0.25, 160.0)), duration=160.0, seed=3, rate=200.0)
     res, _ = analyse_run(rec.t, rec.channels, brake_cfg, "run160", paper_marks=True)
     tr = res.transitions
     pd = _regimes(tr, "period-doubling")
     assert len(pd) == 1
     # truth: rises of consecutive x1 peaks alternate by > 5 % from ~137 s, < 1 % before 130 s
-    from scipy.signal import find_peaks
-
     x = rec.truth["true_x1"]
     pk, prop = find_peaks(x, prominence=5e-4)
     tp, rise = rec.t[pk], prop["prominences"]
@@ -268,9 +260,6 @@ def test_period_doubling_in_the_160s_run(brake_cfg):
 
 
 def test_cli_end_to_end(runs, tmp_path, capsys):
-    from daq.cli.main import main
-    from daq.io.interchange import write_recording
-
     rec, _, _ = runs["low-1kHz"]
     data = tmp_path / "run.h5"
     write_recording(rec, data)
@@ -291,8 +280,6 @@ def test_cli_end_to_end(runs, tmp_path, capsys):
 
 
 def test_cli_bad_input_exits_2_naming_the_file(tmp_path, capsys):
-    from daq.cli.main import main
-
     bad = tmp_path / "nophi.csv"
     t = np.arange(0, 12, 0.01)
     bad.write_text("t,x1,vb\n" + "\n".join(f"{a:.3f},{np.sin(a):.6f},0.1" for a in t) + "\n")
@@ -309,8 +296,6 @@ def test_cli_bad_input_exits_2_naming_the_file(tmp_path, capsys):
 
 
 def test_short_or_broken_recordings_are_input_errors(brake_cfg):
-    from daq.errors import InputError
-
     t = np.arange(0, 5, 0.01)
     ch = {"x1": np.sin(t), "phi": 0 * t, "vb": 0.1 + 0 * t}
     with pytest.raises(InputError) as e:

@@ -22,7 +22,10 @@ import math
 import numpy as np
 import pytest
 
-from daq.analysis import paper002 as p2
+from daq.analysis.paper002.analysis import DrumMuResult, analyse_drum_mu
+from daq.analysis.paper002.kinematics import V_MIN, differentiation_check, mu_series, transition_distance
+from daq.analysis.paper002.law import PARAMS, fit_law, law
+from daq.analysis.paper002.programme import BAND, HOLD_S, cell_ramp
 from daq.cli.main import main
 from daq.config import load_rig
 from daq.errors import InputError
@@ -48,7 +51,7 @@ def cell(tmp_path_factory):
     the printed JSON, the report folder, and the mu(t) series recomputed in memory for truth checks.
     """
     cfg = load_rig("drum-pendulum")
-    rt, rv = ramp_table(p2.cell_ramp(0.012))
+    rt, rv = ramp_table(cell_ramp(0.012))
     rec = simulate(cfg, ramp=(rt, rv), duration=float(rt[-1]), seed=11)
     tmp = tmp_path_factory.mktemp("p002")
     path = tmp / "cell.h5"
@@ -58,8 +61,8 @@ def cell(tmp_path_factory):
     with contextlib.redirect_stdout(buf):
         assert main(["analyse", "drum-mu", str(path), "--json", "--report", str(rep)]) == 0
     printed = json.loads(buf.getvalue())
-    series = p2.mu_series(Recording(rec.rig, rec.t, rec.channels, rec.units, rec.meta), cfg, str(path))
-    return rec, path, p2.DrumMuResult.model_validate(printed), series, printed, rep
+    series = mu_series(Recording(rec.rig, rec.t, rec.channels, rec.units, rec.meta), cfg, str(path))
+    return rec, path, DrumMuResult.model_validate(printed), series, printed, rep
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +70,7 @@ def half_thrust(tmp_path_factory):
     """The same law on a thrust row at P/2 (a config copy, as the campaign makes), a time-scaled cell."""
     cfg = load_rig("drum-pendulum")
     cfg = cfg.model_copy(update={"mechanics": cfg.mechanics.model_copy(update={"thrust_N": 14.27})})
-    rt, rv = ramp_table(p2.cell_ramp(0.012, time_scale=0.5))
+    rt, rv = ramp_table(cell_ramp(0.012, time_scale=0.5))
     rec = simulate(cfg, ramp=(rt, rv), duration=float(rt[-1]), seed=12)
     path = tmp_path_factory.mktemp("p002h") / "half.h5"
     write_recording(rec, path)
@@ -83,7 +86,7 @@ def test_law3_recovered_from_a_simulated_cell(cell):
         assert abs(c.value - true) < 4 * c.se, (k, c.value, c.se, true)
         assert c.identified, k
     assert f.R2 > 0.99 and f.converged
-    assert f.v_range_m_per_s[0] >= p2.V_MIN and f.v_range_m_per_s[1] > 0.055  # the sweep reached its band
+    assert f.v_range_m_per_s[0] >= V_MIN and f.v_range_m_per_s[1] > 0.055  # the sweep reached its band
 
 
 def test_mu_t_by_eq2_matches_the_simulated_friction(cell):
@@ -98,7 +101,7 @@ def test_mu_t_by_eq2_matches_the_simulated_friction(cell):
     # v_wz: velocity gauge 0.2 mm/s smoothed, drum gauge 0.1 mm/s per reading smoothed
     assert np.sqrt(np.mean((s.v[u] - v_true[u]) ** 2)) < 1.5e-4
     # the selection leaves out exactly the slow samples and their guard band
-    assert np.all(np.abs(s.v[u]) >= p2.V_MIN)
+    assert np.all(np.abs(s.v[u]) >= V_MIN)
 
 
 def test_normal_load_follows_the_thrust_gauge(cell, half_thrust):
@@ -108,7 +111,7 @@ def test_normal_load_follows_the_thrust_gauge(cell, half_thrust):
     mu_true, _ = _true_mu(rec)
     nominal = Recording(rec.rig, rec.t, {**rec.channels, "thrust": np.full(rec.t.size, cfg.mechanics.thrust_N)},
                         rec.units, rec.meta)
-    s_nom = p2.mu_series(nominal, cfg, "nominal")
+    s_nom = mu_series(nominal, cfg, "nominal")
     u = s.used & s_nom.used
     rms_gauge = np.sqrt(np.mean((s.mu[u] - mu_true[u]) ** 2))
     rms_nominal = np.sqrt(np.mean((s_nom.mu[u] - mu_true[u]) ** 2))
@@ -117,7 +120,7 @@ def test_normal_load_follows_the_thrust_gauge(cell, half_thrust):
 
     # a thrust row at P/2 (its own config copy in the recording) identifies the same law
     rec_h, path_h = half_thrust
-    res_h, _ = p2.analyse_drum_mu(path_h)
+    res_h, _ = analyse_drum_mu(path_h)
     assert res_h.thrust_N["mean"] == pytest.approx(14.27, rel=0.035)
     for k in ("C", "D", "E"):
         c = res_h.fit.coefficients[k]
@@ -132,14 +135,14 @@ def test_differentiated_phi_is_biased_at_stick_slip_the_gauges_are_not():
         update={"A": -0.04, "B_s_per_m": 300.0, "C_s_per_m": 30.0, "E": 0.12})})
     rt, rv = ramp_table(constant_ramp(0.005, 12.0))
     rec = simulate(cfg, ramp=(rt, rv), duration=12.0, seed=5)
-    s = p2.mu_series(Recording(rec.rig, rec.t, rec.channels, rec.units, rec.meta), cfg, "stick-slip", v_min=1e-3)
+    s = mu_series(Recording(rec.rig, rec.t, rec.channels, rec.units, rec.meta), cfg, "stick-slip", v_min=1e-3)
     assert s.info["transitions"] > 100  # it does stick and slip (~5 cycles per second)
-    chk = p2.differentiation_check(s)
+    chk = differentiation_check(s)
     # phi'' from +-5 ms Savitzky-Golay: ~2x noisier within 10 ms of a transition than far from one
     assert chk["within_10ms"]["rms"] > 1.5 * chk["beyond_30ms"]["rms"], chk
     # the gauges' mu(t) on the samples the fit uses: as good next to the guard band as far away
     mu_true, v_true = _true_mu(rec)
-    dist = p2.transition_distance(np.abs(v_true) < 1e-3, 1000.0)
+    dist = transition_distance(np.abs(v_true) < 1e-3, 1000.0)
     near = s.used & (dist < 0.03)  # just outside the guard band (15 ms)
     far = s.used & (dist > 0.05)
     assert near.sum() > 300 and far.sum() > 300
@@ -151,8 +154,8 @@ def test_differentiated_phi_is_biased_at_stick_slip_the_gauges_are_not():
 def test_fit_is_exact_on_the_law_itself():
     """Variable projection finds all five coefficients without start values (noise-free samples)."""
     v = np.geomspace(3e-3, 0.06, 4000)
-    th = np.array([TRUE[k] for k in p2.PARAMS])
-    f = p2.fit_law(v, p2.law(v, th, 2e-4), 2e-4)
+    th = np.array([TRUE[k] for k in PARAMS])
+    f = fit_law(v, law(v, th, 2e-4), 2e-4)
     for k, t in TRUE.items():
         assert f.coefficients[k].value == pytest.approx(t, rel=1e-5), k
     assert f.R2 == pytest.approx(1.0, abs=1e-9)
@@ -163,18 +166,18 @@ def test_cell_programme_respects_the_drive():
     d = cfg.drive
     for v0 in (0.0022, 0.0066, 0.03, 0.09):
         for ts in (1.0, 0.05):
-            ramp = p2.cell_ramp(v0, time_scale=ts, max_accel=d.max_accel_m_per_s2)
+            ramp = cell_ramp(v0, time_scale=ts, max_accel=d.max_accel_m_per_s2)
             rt, rv = ramp_table(ramp)
             check_limits(rt, rv, d.max_speed_m_per_s, d.max_accel_m_per_s2, "cell")
             hold = ramp.segment[1]
-            assert hold.kind == "hold" and hold.duration_s == pytest.approx(p2.HOLD_S * ts)
+            assert hold.kind == "hold" and hold.duration_s == pytest.approx(HOLD_S * ts)
             assert rv[2] == pytest.approx(v0)  # held at v0
-            assert rv.max() == pytest.approx(max(p2.BAND[1], 2 * v0))
+            assert rv.max() == pytest.approx(max(BAND[1], 2 * v0))
             t_lo = sum(seg.duration_s for seg in ramp.segment[:4])
-            assert np.interp(t_lo, rt, rv) == pytest.approx(p2.BAND[0], rel=1e-6)  # the exponential ends at v_lo
+            assert np.interp(t_lo, rt, rv) == pytest.approx(BAND[0], rel=1e-6)  # the exponential ends at v_lo
             assert rv[-1] == 0.0
     with pytest.raises(InputError) as e:
-        p2.cell_ramp(1e-4)
+        cell_ramp(1e-4)
     assert e.value.field == "v0"
 
 

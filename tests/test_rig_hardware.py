@@ -7,14 +7,36 @@ the same code would talk to the lab's instruments.
 from __future__ import annotations
 
 import time
+from typing import get_args
 
 import numpy as np
 import pytest
 
-from daq.config import load_rig, parse_rig
+from daq.config import (
+    CanBus,
+    CanSettings,
+    Instrument,
+    MotorSettings,
+    StreamPort,
+    StreamSettings,
+    ThermocoupleSettings,
+    load_rig,
+    parse_rig,
+)
+from daq.errors import DaqError, InputError
 from drivers.base import DriverState
+from drivers.can_sensors import CanBusCfg
 from drivers.factory import build_drivers
+from drivers.families import FAMILIES
+from drivers.motor import MotorCfg, MotorError, MotorUnavailable, SerialMotorRegulator
+from drivers.motor_protocol import ProtocolError
+from drivers.serial_stream import BinaryStreamCfg
+from drivers.thermocouple import DeviceSilent, ThermocoupleCfg
+from sim_backends.families import SIMULATORS, simulator_class
 from sim_backends.hardware import SimulatedHardware
+from sim_backends.motor import SimMotorRegulator
+from sim_backends.pty_port import PtyPort
+from sim_backends.realtime import RealtimeRig
 
 
 def collect(drivers, seconds):
@@ -83,8 +105,6 @@ def test_brake_alternative_wiring_serial_stream(tmp_path):
 
 
 def test_two_instruments_cannot_carry_one_channel():
-    from daq.errors import InputError
-
     data = load_rig("brake-2dof").model_dump(mode="json", exclude_none=True)
     data["instruments"]["laser_serial"]["enabled"] = True
     with pytest.raises(InputError, match=r"instruments\.laser_serial\.channels: 'x1' is also carried"):
@@ -94,11 +114,6 @@ def test_two_instruments_cannot_carry_one_channel():
 def test_late_reply_is_not_taken_for_the_next_commands_reply(tmp_path):
     """Regression (flaky belt-ndof run): a reply arriving after its request timed out used to be read as
     the answer to the next command ('bad SPD? reply ['HB', '14']'), and the link stayed one reply behind."""
-    from drivers.motor import MotorCfg, MotorUnavailable, SerialMotorRegulator
-    from sim_backends.motor import SimMotorRegulator
-    from sim_backends.pty_port import PtyPort
-    from sim_backends.realtime import RealtimeRig
-
     rig = RealtimeRig(load_rig("brake-2dof"))
     port = PtyPort(tmp_path / "motor")
     reg = SimMotorRegulator(rig, port)
@@ -127,3 +142,37 @@ def test_late_reply_is_not_taken_for_the_next_commands_reply(tmp_path):
         drv.close()
         reg.stop()
         port.close()
+
+
+def test_every_family_is_registered_once_on_each_side():
+    """The config's Instrument union, the drivers' registry and the simulators' registry know the same
+    families, and each registered class builds itself from that family's settings."""
+    settings = {m.model_fields["family"].default: m for m in get_args(get_args(Instrument)[0])}
+    assert list(FAMILIES) == list(settings)
+    assert list(SIMULATORS) == list(settings)
+    for name, family in FAMILIES.items():
+        assert family.settings is settings[name]
+        assert callable(getattr(family.driver_class(), "from_settings", None)), name
+        assert callable(getattr(simulator_class(name), "from_settings", None)), name
+
+
+def test_driver_errors_are_daq_errors_and_keep_their_builtin_bases():
+    for exc, builtin in ((MotorError, RuntimeError), (MotorUnavailable, ConnectionError),
+                         (DeviceSilent, TimeoutError), (ProtocolError, ValueError)):
+        assert issubclass(exc, DaqError) and issubclass(exc, builtin), exc
+    assert issubclass(InputError, DaqError)
+
+
+def test_instrument_entries_are_the_settings_the_drivers_extend():
+    """Each [instruments] entry validates into its family's settings model, which the driver's config
+    extends (motor, thermocouple) or shares its link with (CAN bus, stream port) instead of repeating."""
+    insts = load_rig("brake-2dof").instruments
+    assert [type(insts[n]) for n in ("motor", "can", "laser_serial", "thermocouple")] == [
+        MotorSettings, CanSettings, StreamSettings, ThermocoupleSettings]
+    assert issubclass(MotorCfg, MotorSettings) and issubclass(ThermocoupleCfg, ThermocoupleSettings)
+    assert issubclass(CanSettings, CanBus) and issubclass(CanBusCfg, CanBus)
+    assert issubclass(StreamSettings, StreamPort) and issubclass(BinaryStreamCfg, StreamPort)
+    motor = insts["motor"].with_endpoint({"url": "loop://", "interface": "ignored"})
+    assert motor.url == "loop://" and motor.baudrate == insts["motor"].baudrate
+    can = insts["can"].with_endpoint({"url": "ignored", "interface": "virtual", "channel": "c"})
+    assert (can.interface, can.channel, can.bitrate) == ("virtual", "c", insts["can"].bitrate)

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import random
+import socket
 import struct
+import threading
 import time
 
 import pytest
+from pydantic import ValidationError
 
 from drivers.base import BackoffCfg, DriverState, Sample
 from drivers.framing import (
@@ -136,8 +139,6 @@ def test_decoder_flags_frames_of_another_channel_count():
 
 def test_stream_config_is_validated():
     """Channel count limits, positive scales and unique names are checked when the config is built."""
-    from pydantic import ValidationError
-
     ch = {"name": "x1", "scale": 1e-7}
     assert len(BinaryStreamCfg(url="loop://", channels=[ch]).channels) == 1
     for bad in ([], [ch, ch], [{"name": "x1", "scale": 0.0}], [dict(ch, name=f"c{k}") for k in range(17)]):
@@ -336,9 +337,6 @@ def test_stream_unplug_replug_recovers_same_driver(rig, setup):
 
 def test_driver_reads_a_socket_url(brake_cfg):
     """Any pyserial URL works: the same frames (with garbage between) through socket://, all decoded in order."""
-    import socket
-    import threading
-
     codec = FrameCodec(2)
     n = 3000
     data = b"".join((b"\x00\xa5\x5a\x02\x13" if s % 97 == 0 else b"") + codec.encode(s, 1000 * s, (s, -s))

@@ -3,6 +3,8 @@
 One module per benchmark, found through one registry (:data:`BENCHES`), as python-can finds its
 interfaces: a module is imported only when its benchmark is asked for, so `daq --help` does not
 pay for numba, zmq and the simulators.
+
+Decision records: docs/decisions/0012-layout-by-layer.md, docs/decisions/0013-benchmarks-beside-same-run-baselines.md.
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@
 plain scipy ``solve_ivp`` (RK45, rtol 1e-6, atol 1e-9) of the very same equation
 code run with numba disabled (NUMBA_DISABLE_JIT=1 in a child process), so the
 baseline is the same equations in plain Python, not a second copy.
+
+Decision record: docs/decisions/0013-benchmarks-beside-same-run-baselines.md.
 """
 
 from __future__ import annotations

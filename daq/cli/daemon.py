@@ -8,6 +8,9 @@ Keys (``--keys DIR``), as written by ``daq ctl keygen DIR --operator NAME --obse
   client side: a directory with client.key_secret and server.key (keygen writes DIR/clients/NAME/).
 With keys the control socket is CURVE-encrypted and authenticated (also on loopback); without
 keys it must bind to loopback.
+
+Heavy modules are imported inside the command functions (marked ``# heavy``): `daq --help`
+imports every cli module and must stay fast.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from daq.errors import InputError
+from daq.errors import DaqError, InputError
 
 DEFAULT_CONTROL = "tcp://127.0.0.1:5570"
 DEFAULT_BUS = "tcp://127.0.0.1:5560"
@@ -91,6 +94,7 @@ def server_keys(keys: str | None) -> dict[str, Path | None]:
 
 
 def cmd_daemon(args: argparse.Namespace) -> int:
+    # heavy: zmq, pydantic and the daemon only when the command runs
     from pydantic import ValidationError
 
     from daq.config import load_rig
@@ -138,6 +142,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace):
+    # heavy: zmq, pydantic and the daemon only when the command runs
     from daq.daemon.control import ControlClient
 
     if args.keys is None:
@@ -150,7 +155,9 @@ def _client(args: argparse.Namespace):
                          server_public_file=d / "server.key", timeout_s=args.timeout)
 
 
-class CtlFailed(Exception):
+class CtlFailed(DaqError):
+    """The daemon refused or failed a request (exit status 1; bad input is an InputError, exit 2)."""
+
     def __init__(self, message: str, status: int) -> None:
         super().__init__(message)
         self.status = status
@@ -312,6 +319,7 @@ def _follow(args: argparse.Namespace, c, path: str) -> int:
 
 
 def cmd_ctl_keygen(args: argparse.Namespace) -> int:
+    # heavy: zmq, pydantic and the daemon only when the command runs
     from daq.daemon.control import generate_keys
 
     d = Path(args.dir)

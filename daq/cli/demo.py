@@ -1,138 +1,32 @@
-"""``daq demo``: the whole story on simulated hardware, with no hardware attached.
+"""``daq demo``: the main job on simulated hardware (the story itself is daq/demo.py).
 
-A simulated brake-2dof rig with a hidden effect runs the seed deceleration ramp
-of paper 001 (eq. 11, V0 = 0.17 m/s) through the daemon: drivers, bus, recorder
-and online estimator, live progress. Then the researcher's loop on that recording:
-compare the seed model, diagnose, add the effect diagnose names, compare again,
-until diagnose finds nothing more; the error falls and a report folder holds every
-figure. A real regulator does not follow its set points exactly (it ramps within its
-acceleration limit), so the recording usually also needs `belt-speed` (drive the
-model with the measured belt speed) once the hidden effect is in: a second round.
-
-Choices (said, not hidden): the 45 s ramp runs time-scaled to RAMP_S seconds
-(the same speeds, a steeper deceleration within the drive's limits) so the demo
-takes about two minutes; the hidden effect is `accel-sign` (paper 000's
-accelerating/decelerating kinetic branches), whose magnitude is the rig config's.
+Heavy modules are imported inside the command functions (marked ``# heavy``): `daq --help`
+imports every cli module and must stay fast.
 """
 
 from __future__ import annotations
 
-import json
-import sys
-import time
-from pathlib import Path
-
-from daq.errors import InputError
-
-RIG = "brake-2dof"
-HIDDEN = "accel-sign"
-RAMP_S = 20.0
-MAX_ROUNDS = 3
-MAX_WINDOWS = 60
+import argparse
 
 
-def _line(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job: record a ramp through the daemon on a simulated rig, then compare, diagnose, add, compare."""
+    # heavy: the daemon, the simulators and the models
+    from daq.demo import run_demo
+
+    r = run_demo(args.out, hidden=args.hidden, ramp_s=args.ramp_seconds, seed=args.seed)
+    added = ", ".join(r["added"]) or "nothing"
+    line = (f"demo: report in {args.out}/ (summary.json, history.png, one folder per round); added {added}; "
+            f"error on held-out windows {r['error_seed']:.3g} -> {r['error_final']:.3g} m (noise floor "
+            f"{r['noise_floor']:.3g} m; {r['excess_removed']:.0%} of the excess removed)")
+    print(line + f" in {r['seconds']:.0f} s")
+    return 0
 
 
-def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed: int = 1) -> dict:
-    from daq.config import load_rig
-    from daq.daemon.service import BenchProgress, run_sim_ramp
-    from daq.ramps import seed_ramp
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    rec_path = out / "recording.h5"
-    if rec_path.exists():
-        raise InputError(str(rec_path), "out", "exists from an earlier demo; choose another --out or remove it")
-    cfg = load_rig(RIG)
-    t_start = time.perf_counter()
-    _line(f"1/4 recording: simulated {RIG} rig (hidden effect: {hidden}) through the daemon; seed ramp "
-          f"V0 = {cfg.drive.V0_m_per_s} m/s, Tmax = {cfg.drive.Tmax_s:g} s, time-scaled to {ramp_s:g} s")
-    tty = sys.stderr.isatty()
-
-    def show(b: BenchProgress) -> None:
-        f = f"{b.friction_N:+.3f} N" if b.friction_N is not None else "  -   "
-        mu = f"{b.mu:.3f}" if b.mu is not None else " - "
-        v = f"{b.belt_speed:.3f}" if b.belt_speed is not None else "  -  "
-        msg = (f"    {b.state:9s} {b.fraction:4.0%}  belt {v} m/s (set {b.commanded:.3f})  "
-               f"estimator: F {f}, mu {mu}")
-        if tty:
-            print("\r" + msg, end="", file=sys.stderr, flush=True)
-        elif int(b.elapsed_s * 5) % 10 == 0:  # every ~2 s in a log
-            _line(msg)
-
-    run_sim_ramp(RIG, seed_ramp(cfg.drive.V0_m_per_s, cfg.drive.Tmax_s), rec_path, effects=[hidden],
-                 ramp_time_scale=ramp_s / cfg.drive.Tmax_s, seed=seed, progress=show, progress_s=0.2)
-    if tty:
-        print(file=sys.stderr)
-    _line(f"    wrote {rec_path} ({time.perf_counter() - t_start:.0f} s)")
-
-    result = analyse(rec_path, out, hidden)
-    result["seconds"] = time.perf_counter() - t_start
-    (out / "summary.json").write_text(json.dumps(result, indent=2, default=float))
-    return result
-
-
-def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
-    """The researcher's loop on a recording: compare, diagnose, add what is missing, until nothing is."""
-    from daq.config import load_rig
-    from daq.io.loading import load_data
-    from daq.models.compare import compare
-    from daq.models.diagnose import diagnose
-    from daq.models.figures import diagnose_figure, history_figure
-    from daq.models.session import Session
-    from daq.models.spec import add_effect, save_model, seed_model
-
-    cfg = load_rig(RIG)
-    rec = load_data(rec_path, RIG)
-    session = Session(rec, str(rec_path), cfg, max_windows=MAX_WINDOWS)
-    model = seed_model(RIG)
-    save_model(model, out / "model-seed.toml")
-    _line(f"2/4 the seed model ({model.describe()}) against the recording ({session.m.n} samples at "
-          f"{session.m.rate:.0f} Hz, {session.win.starts.size} windows of {(session.win.length - 1) / session.m.rate:.2f} s)")
-    history: list[dict] = []
-    rounds: list[dict] = []
-    for rnd in range(1, MAX_ROUNDS + 1):
-        tag = "seed" if rnd == 1 else "+".join(list(model.effects)[3:])
-        diag = diagnose(session, model, progress=lambda m: _line("    " + m))
-        res = compare(session, diag.base, diag.floors)
-        folder = out / f"{rnd}-{tag}"
-        _report(session, diag.base, res, folder)
-        diagnose_figure(session, diag, folder / "diagnose.png")
-        (folder / "diagnose.json").write_text(json.dumps(diag.as_json(session), indent=2, default=float))
-        save_model(diag.base.model, folder / "model-fitted.toml")
-        history.append(_entry(res))
-        rounds.append({"model": res["model"], "error": res["error"], "noise_floor": res["noise_floor"],
-                       "worst_regime": res["worst_regime"], "diagnosed": diag.candidates[0].effect if diag.found else None,
-                       "reduction": diag.candidates[0].reduction if diag.found else None})
-        _line(f"3/4 round {rnd}: error {res['error']:.3g} m (noise floor {res['noise_floor']:.3g} m), worst regime "
-              f"'{res['worst_regime']}'. {diag.summary}")
-        if not diag.found:
-            break
-        model = add_effect(model, diag.candidates[0].effect)
-        save_model(model, out / f"model-round{rnd + 1}.toml")
-        _line(f"4/4 model add {diag.candidates[0].effect} -> refit and compare again")
-    history_figure(history, out / "history.png")
-    (out / "history.jsonl").write_text("".join(json.dumps(h) + "\n" for h in history))
-    first, last = rounds[0], rounds[-1]
-    removed = (first["error"] - last["error"]) / max(first["error"] - first["noise_floor"], 1e-300)
-    _line(f"    error {first['error']:.3g} m -> {last['error']:.3g} m (noise floor {last['noise_floor']:.3g} m): "
-          f"{removed:.0%} of the excess removed by adding {', '.join(r['diagnosed'] for r in rounds if r['diagnosed']) or 'nothing'}")
-    return {"recording": str(rec_path), "hidden_effect": hidden, "rounds": rounds, "error_seed": first["error"],
-            "error_final": last["error"], "noise_floor": last["noise_floor"], "excess_removed": removed,
-            "added": [r["diagnosed"] for r in rounds if r["diagnosed"]], "final_model": last["model"]}
-
-
-def _entry(res: dict) -> dict:
-    return {k: res[k] for k in ("data", "model", "model_digest", "error", "error_unit", "noise_floor", "error_held_out")}
-
-
-def _report(session, fitted, res: dict, folder: Path) -> None:
-    from daq.models.figures import compare_figure, spectrogram_figure
-
-    folder.mkdir(exist_ok=True)
-    compare_figure(session, fitted, res, folder / "compare.png")
-    spectrogram_figure(session, res, folder / "spectrogram.png")
-    clean = {k: v for k, v in res.items() if k != "_plot"}
-    (folder / "compare.json").write_text(json.dumps(clean, indent=2, default=float))
+def register(sub: argparse._SubParsersAction) -> None:
+    demo = sub.add_parser("demo", help="the main job on simulated hardware")
+    demo.add_argument("--out", default="out/demo", help="report folder")
+    demo.add_argument("--hidden", default="accel-sign", help="hidden effect of the simulated rig")
+    demo.add_argument("--ramp-seconds", type=float, default=20.0, help="the 45 s seed ramp time-scaled to this")
+    demo.add_argument("--seed", type=int, default=1, help="noise seed of the simulated instruments")
+    demo.set_defaults(func=cmd_demo)

@@ -1,4 +1,8 @@
-"""``daq model``, ``daq fit``, ``daq compare``, ``daq diagnose``, ``daq history``: models against measurements."""
+"""``daq model``, ``daq fit``, ``daq compare``, ``daq diagnose``, ``daq history``: models against measurements.
+
+Heavy modules are imported inside the command functions (marked ``# heavy``): `daq --help`
+imports every cli module and must stay fast.
+"""
 
 from __future__ import annotations
 
@@ -10,27 +14,11 @@ import time
 from pathlib import Path
 
 from daq.errors import InputError
+from daq.io.jsonout import dumps_json, print_json
+
+from .output import say
 
 HISTORY = "daq-history.jsonl"
-
-
-def _say(msg: str) -> None:
-    print(f"  {msg}", file=sys.stderr, flush=True)
-
-
-def print_json(obj: dict) -> None:
-    """``--json``: one object on stdout, numpy values as plain numbers (shared by the analysis commands)."""
-    sys.stdout.write(json.dumps(obj, indent=2, default=json_default) + "\n")
-
-
-def json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return str(o)
 
 
 def _out_path(p: str, suffix: str, flag: str = "-o") -> Path:
@@ -44,6 +32,7 @@ def _out_path(p: str, suffix: str, flag: str = "-o") -> Path:
 
 
 def cmd_model_init(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.spec import save_model, seed_model
 
     out = _out_path(args.output, ".toml")
@@ -55,14 +44,28 @@ def cmd_model_init(args: argparse.Namespace) -> int:
 
 
 def cmd_model_add(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
+    from daq.models.candidates import MECHANICS, free_mechanics
     from daq.models.spec import add_effect, load_model, save_model
 
     m = load_model(args.model)
+    if args.effect.startswith("mechanics."):  # a rig that is not its config: set one of its parameters free
+        key = args.effect.split(".", 1)[1]
+        if key not in MECHANICS.get(m.rig, ()):
+            raise InputError(f"model add {args.effect}", args.effect,
+                             f"not a mechanics parameter a fit may free on {m.rig} (has: "
+                             f"{', '.join('mechanics.' + k for k in MECHANICS.get(m.rig, ())) or 'none'})")
+        new = free_mechanics(m, key, f"model add {args.effect}")
+        out = Path(args.output or args.model)
+        save_model(new, out)
+        print(f"wrote {out}: {args.effect} free", file=sys.stderr)
+        return 0
     path = args.effect if args.effect.endswith(".py") else None
     name = Path(path).stem if path else args.effect
     if path and not Path(path).is_file():
         raise InputError(path, "path", "user effect file not found")
-    new = add_effect(m, name, f"model add {args.effect}", path=str(Path(path).resolve()) if path else None)
+    new = add_effect(m, name, f"model add {args.effect}", path=str(Path(path).resolve()) if path else None,
+                     form=args.form)
     out = Path(args.output or args.model)
     save_model(new, out)
     added = [k for k in new.free_names() if k not in m.params()]
@@ -71,6 +74,7 @@ def cmd_model_add(args: argparse.Namespace) -> int:
 
 
 def cmd_model_remove(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.spec import load_model, remove_effect, save_model
 
     m = load_model(args.model)
@@ -85,30 +89,32 @@ def cmd_model_remove(args: argparse.Namespace) -> int:
 
 
 def _session(args: argparse.Namespace):
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.session import Session
     from daq.models.spec import load_model
 
     model = load_model(args.model)
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
     s = Session.open(args.data, model, args.rig)
-    _say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
+    say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
          f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
     return model, s
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.spec import FitInfo, save_model
 
     out = _out_path(args.output, ".toml")
     model, s = _session(args)
     t0 = time.perf_counter()
-    _say(f"fitting {len(model.free_names())} free parameters")
+    say(f"fitting {len(model.free_names())} free parameters")
     f = s.fit(model)
-    err = f.rms(s.primary, "all")
+    err = f.rms(s.primary)
     fitted = f.model.model_copy(update={"fit": FitInfo(data=str(args.data), error=err, error_unit=s.m.units[s.primary],
                                                       cost=f.fit.cost)})
     save_model(fitted, out)
-    res = {"model": str(out), "error": err, "error_unit": s.m.units[s.primary], "error_held_out": f.rms(s.primary),
+    res = {"model": str(out), "error": err, "error_unit": s.m.units[s.primary], "error_all_windows": f.rms(s.primary, "all"),
            "parameters": {k: {"value": f.values[k], "std": f.fit.std.get(k)} for k in model.free_names()},
            "seconds": time.perf_counter() - t0, "converged": f.fit.success, "message": f.fit.message}
     if args.json:
@@ -116,13 +122,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     else:
         for k, d in res["parameters"].items():
             print(f"  {k:42s} {d['value']:.6g} +- {d['std'] if d['std'] is not None else float('nan'):.2g}")
-        print(f"error {err:.4g} {res['error_unit']} (held-out {res['error_held_out']:.4g}); wrote {out}")
+        print(f"error {err:.4g} {res['error_unit']} on held-out windows (all windows {res['error_all_windows']:.4g}); "
+              f"wrote {out}")
     return 0
 
 
 def _append_history(path: Path, res: dict) -> None:
     entry = {k: res[k] for k in ("data", "model", "model_digest", "error", "error_unit", "noise_floor",
-                                 "error_held_out")}
+                                 "error_all_windows")}
     entry["time"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     entry["data"] = str(Path(res["data"]).resolve())
     with open(path, "a") as fh:
@@ -130,16 +137,17 @@ def _append_history(path: Path, res: dict) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.compare import compare
     from daq.models.figures import compare_figure, spectrogram_figure
     from daq.models.spec import save_model
 
     model, s = _session(args)
-    _say(f"fitting {len(model.free_names())} free parameters")
+    say(f"fitting {len(model.free_names())} free parameters")
     f = s.fit(model)
-    _say("noise floor: the fitted model scored on its own simulated output with the measured noise")
+    say("noise floor: the fitted model scored on its own simulated output with the measured noise")
     floor = s.noise_floor(f)
-    _say("forward simulation and breakdowns")
+    say("forward simulation and breakdowns")
     res = compare(s, f, floor)
     plot = res.pop("_plot")
     if args.report:
@@ -147,7 +155,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         rep.mkdir(parents=True, exist_ok=True)
         compare_figure(s, f, {**res, "_plot": plot}, rep / "compare.png")
         spectrogram_figure(s, {**res, "_plot": plot}, rep / "spectrogram.png")
-        (rep / "compare.json").write_text(json.dumps(res, indent=2, default=json_default))
+        (rep / "compare.json").write_text(dumps_json(res))
         save_model(f.model, rep / "fitted.toml")
         res["report"] = str(rep)
     if not args.no_history:
@@ -156,7 +164,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print_json(res)
     else:
         u = res["error_unit"]
-        print(f"error {res['error']:.4g} {u} (noise floor {res['noise_floor']:.4g}, held-out {res['error_held_out']:.4g})"
+        print(f"error {res['error']:.4g} {u} on held-out windows (noise floor {res['noise_floor']:.4g}; all windows "
+              f"{res['error_all_windows']:.4g})"
               f"  model: {res['model']}")
         print("  by regime: " + "; ".join(f"{k} {v['error']:.3g}" for k, v in res["by_regime"].items()))
         print("  by signal: " + "; ".join(f"{k} {v['error']:.3g} {v['unit']} (floor {v['noise_floor']:.3g})"
@@ -168,28 +177,36 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.diagnose import diagnose
     from daq.models.figures import diagnose_figure
 
     model, s = _session(args)
     t0 = time.perf_counter()
-    d = diagnose(s, model, progress=_say, workers=args.workers)
+    d = diagnose(s, model, progress=say, workers=args.workers)
     res = d.as_json(s)
     res["seconds"] = time.perf_counter() - t0
     if args.report:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
         diagnose_figure(s, d, rep / "diagnose.png")
-        (rep / "diagnose.json").write_text(json.dumps(res, indent=2, default=json_default))
+        (rep / "diagnose.json").write_text(dumps_json(res))
         res["report"] = str(rep)
     if args.json:
         print_json(res)
     else:
         print(d.summary)
-        print(f"  {'effect':24s} {'reduction':>9s} {'z':>6s}  params")
+        print(f"  {'candidate':36s} {'reduction':>9s} {'z':>6s}  params")
         for c in res["candidates"]:
-            print(f"  {c['effect']:24s} {c['reduction']:9.2f} {c['consistency_z']:6.1f}  "
+            if c["reduction"] is None:
+                print(f"  {c['label']:36s} {'-':>9s} {'':6s}  (screened, predicted gain {c['predicted_gain']:.3g}; "
+                      "not fitted)")
+                continue
+            print(f"  {c['label']:36s} {c['reduction']:9.2f} {c['consistency_z']:6.1f}  "
                   + ", ".join(f"{k.rsplit('.', 1)[-1]}={v:.4g}" for k, v in c["values"].items()))
+        for step in res["sequence"]:
+            print(f"  added: {step['label']} (removes {step['step_reduction']:.0%} of the excess left, "
+                  f"z {step['consistency_z']:.1f})")
         if not d.found and d.correlations:
             print("  residual correlates with: " + ", ".join(
                 f"{c['quantity']} ({c['spearman_rho']:+.2f})" for c in d.correlations[:5]))
@@ -197,6 +214,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_history(args: argparse.Namespace) -> int:
+    # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.figures import history_figure
 
     path = Path(args.history)
@@ -232,12 +250,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("rig")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_model_init)
-    for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (or a user effect file.py)"),
+    for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (in one of its forms), a user effect "
+                                                 "file.py, or free a mechanics parameter (mechanics.NAME)"),
                           ("remove", cmd_model_remove, "remove an effect")):
         p = msub.add_parser(name, help=hlp)
         p.add_argument("model")
         p.add_argument("effect")
         p.add_argument("-o", "--output", help="write here instead of changing MODEL in place")
+        if name == "add":
+            p.add_argument("--form", help="one of the effect's forms (as diagnose names it; default: its first)")
         p.set_defaults(func=fn)
 
     def common(p: argparse.ArgumentParser) -> None:

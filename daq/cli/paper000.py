@@ -3,6 +3,7 @@
 Why commands: the paper identifies its friction model from belt-ndof trajectories (the
 kinetic branches f(w, sgn w'), the static limit f_s(t_s, delta), periodicity from a
 Poincaré section); each is one command with JSON and figures (docs/analyses-000.md).
+The analyses live in daq/analysis/paper000/.
 """
 
 from __future__ import annotations
@@ -13,14 +14,15 @@ import sys
 from pathlib import Path
 
 from daq.errors import InputError
+from daq.io.files import atomic_path
+from daq.io.jsonout import print_json
 
-
-def _say(msg: str) -> None:
-    print(f"  {msg}", file=sys.stderr, flush=True)
+from .output import say
 
 
 def _runs(paths: list[str], rig_config: str | None, damping: float | None):
-    from daq.analysis.paper000 import prepare
+    # lazy: numpy, scipy, pydantic and h5py load only when the command runs (start-up time of daq --help)
+    from daq.analysis.paper000.preparation import prepare
     from daq.io.interchange import read_recording
 
     runs = []
@@ -41,14 +43,25 @@ def _mass(args: argparse.Namespace, runs) -> int | None:
 
 
 def _write_json(path: Path, obj) -> None:
-    from daq.io.interchange import atomic_path
-
+    """The result model as pydantic writes it (NaN and inf as null), atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(obj.model_dump_json(indent=2))
 
 
+def _report(report: str, res, json_name: str, figures: dict) -> None:
+    """The --report directory: each figure (name -> draw(path)), then the result's JSON; one line saying so."""
+    rep = Path(report)
+    rep.mkdir(parents=True, exist_ok=True)
+    for name, draw in figures.items():
+        draw(rep / name)
+    _write_json(rep / json_name, res)
+    say("wrote " + ", ".join(str(rep / name) for name in [*figures, json_name]))
+
+
 def cmd_belt_law(args: argparse.Namespace) -> int:
-    from daq.analysis.paper000 import LAW, belt_law
+    # lazy: the analysis (numpy, scipy, the compiled physics) loads only when the command runs
+    from daq.analysis.paper000.belt_law import belt_law
+    from daq.analysis.paper000.equation_error import LAW
 
     if args.damping is not None and not args.damping >= 0:  # also refuses nan
         raise InputError("--damping", "d", "must be >= 0")
@@ -58,19 +71,16 @@ def cmd_belt_law(args: argparse.Namespace) -> int:
     m = _mass(args, runs)
     print(f"analyse belt-law: {len(runs)} recording(s), d = {runs[0].mech.d:g} ({runs[0].mech.config_source})",
           file=sys.stderr)
-    a = belt_law(runs, masses=None if m is None else [m], windows_per_mass=args.windows, progress=_say)
+    a = belt_law(runs, masses=None if m is None else [m], windows_per_mass=args.windows, progress=say)
     res = a.result
     if args.report:
-        from daq.analysis.paper000_figures import belt_law_figure, belt_static_figure
+        # lazy: matplotlib only when figures are asked for
+        from daq.analysis.paper000.figures import belt_law_figure, belt_static_figure
 
-        rep = Path(args.report)
-        rep.mkdir(parents=True, exist_ok=True)
-        belt_law_figure(res, rep / "belt-law.png")
-        belt_static_figure(res, rep / "belt-static.png")
-        _write_json(rep / "belt-law.json", res)
-        _say(f"wrote {rep / 'belt-law.png'}, {rep / 'belt-static.png'}, {rep / 'belt-law.json'}")
+        _report(args.report, res, "belt-law.json", {"belt-law.png": lambda p: belt_law_figure(res, p),
+                                                     "belt-static.png": lambda p: belt_static_figure(res, p)})
     if args.json:
-        sys.stdout.write(json.dumps(json.loads(res.model_dump_json()), indent=2) + "\n")
+        print_json(json.loads(res.model_dump_json()))
         return 0
     print(f"{len(res.recordings)} recording(s): " + ", ".join(
         f"{Path(r.path).name} (s = {r.belt_speed_s:.3f}, {r.windows} windows)" for r in res.recordings))
@@ -91,7 +101,8 @@ def cmd_belt_law(args: argparse.Namespace) -> int:
 
 
 def cmd_poincare(args: argparse.Namespace) -> int:
-    from daq.analysis.paper000 import poincare
+    # lazy: the analysis (numpy, scipy) loads only when the command runs
+    from daq.analysis.paper000.poincare import poincare
 
     if args.skip is not None and not args.skip >= 0:
         raise InputError("--skip", "skip", "must be >= 0 s")
@@ -105,15 +116,12 @@ def cmd_poincare(args: argparse.Namespace) -> int:
     a = poincare(run, 0 if m is None else m, skip_s=args.skip, kmax=args.kmax)
     res = a.result
     if args.report:
-        from daq.analysis.paper000_figures import poincare_figure
+        # lazy: matplotlib only when figures are asked for
+        from daq.analysis.paper000.figures import poincare_figure
 
-        rep = Path(args.report)
-        rep.mkdir(parents=True, exist_ok=True)
-        poincare_figure(a, rep / "poincare.png")
-        _write_json(rep / "poincare.json", res)
-        _say(f"wrote {rep / 'poincare.png'}, {rep / 'poincare.json'}")
+        _report(args.report, res, "poincare.json", {"poincare.png": lambda p: poincare_figure(a, p)})
     if args.json:
-        sys.stdout.write(json.dumps(json.loads(res.model_dump_json()), indent=2) + "\n")
+        print_json(json.loads(res.model_dump_json()))
         return 0
     per = f", period {res.period_s:.4f} s" if res.period_s else ""
     print(f"{res.path}: {res.n_masses} mass(es), s = {res.belt_speed_s:.3f}; section on mass {res.mass}: "

@@ -12,11 +12,10 @@ import json
 import sys
 from pathlib import Path
 
-from daq.errors import InputError
+from daq.errors import InputError, parse_toml
+from daq.io.jsonout import print_json
 
-
-def _say(msg: str) -> None:
-    print(f"  {msg}", file=sys.stderr, flush=True)
+from .output import say
 
 
 def _planes(text: str | None) -> list[tuple[float, float]] | None:
@@ -38,8 +37,8 @@ def _planes(text: str | None) -> list[tuple[float, float]] | None:
 
 def _config(args: argparse.Namespace, rec) -> tuple[object, str]:
     """The rig config: --rig-config, else the one stored with the recording, else rig_configs/brake-2dof."""
+    # lazy: pydantic and the config models load only when the command runs (start-up time of daq --help)
     from daq.config import load_rig, parse_rig
-    from daq.errors import parse_toml
 
     if args.rig_config:
         return load_rig(args.rig_config), str(args.rig_config)
@@ -51,8 +50,12 @@ def _config(args: argparse.Namespace, rec) -> tuple[object, str]:
 
 
 def cmd_brake_run(args: argparse.Namespace) -> int:
-    from daq.analysis.paper001 import FIGURES, TransitionCfg, analyse_run
-    from daq.io.interchange import atomic_path, read_recording
+    # lazy: numpy, scipy, matplotlib and h5py load only when the command runs (start-up time of daq --help)
+    from daq.analysis.paper001.analysis import analyse_run
+    from daq.analysis.paper001.figures import FIGURES
+    from daq.analysis.paper001.transitions import TransitionCfg
+    from daq.io.files import atomic_path
+    from daq.io.interchange import read_recording
 
     if not Path(args.data).is_file():
         raise InputError(str(args.data), "(file)", "no such file")
@@ -66,18 +69,18 @@ def cmd_brake_run(args: argparse.Namespace) -> int:
     print(f"analyse brake-run: {args.data} ({rec.t.size} samples, config {cfg_src})", file=sys.stderr)
     res, ctx = analyse_run(rec.t, rec.channels, cfg, str(args.data), config_source=cfg_src,
                            plane_window_s=args.window, planes=planes, diff_window_s=args.diff_window,
-                           tcfg=TransitionCfg(), paper_marks=args.paper_marks, say=_say)
+                           tcfg=TransitionCfg(), paper_marks=args.paper_marks, say=say)
     if args.report:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
         for name, fn in FIGURES.items():
-            _say(f"figure {rep / name}")
+            say(f"figure {rep / name}")
             fn(res, ctx, rep / name)
             res.figures.append(str(rep / name))
         with atomic_path(rep / "brake-run.json") as tmp:
             tmp.write_text(res.model_dump_json(indent=2))
     if args.json:
-        sys.stdout.write(json.dumps(json.loads(res.model_dump_json()), indent=2) + "\n")
+        print_json(json.loads(res.model_dump_json()))
         return 0
     f = res.friction
     print(f"{res.data}: {res.duration_s:.1f} s at {res.rate_hz:g} Hz; belt V0 = {res.belt_V0_m_per_s:.4f} m/s, "

@@ -1,8 +1,9 @@
-"""Paper 002 (drum-pendulum) on the command line: ``daq analyse drum-mu`` and ``daq campaign drum``.
+"""Paper 002 (drum-pendulum) on the command line: ``daq analyse drum-mu``, and it registers ``daq campaign drum``.
 
-Why here: the identification of paper 002 (mu(t) by eq. (2), law (3) fitted) and the campaign that
+Why together: the identification of paper 002 (mu(t) by eq. (2), law (3) fitted) and the campaign that
 runs it over a grid of thrusts and drum speeds through the daemon are one story; both print one
-JSON object with --json and write figures with the same JSON to --report / --out.
+JSON object with --json and write figures with the same JSON to --report / --out. The campaign's
+options and command live in daq/cli/campaign.py; this module adds it next to drum-mu.
 """
 
 from __future__ import annotations
@@ -10,12 +11,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .models import print_json
+from daq.io.files import atomic_path
+from daq.io.jsonout import print_json
+
+from .campaign import register as register_campaign
 
 
 def cmd_drum_mu(args: argparse.Namespace) -> int:
-    from daq.analysis.paper002 import GUARD_S, V_MIN, analyse_drum_mu, figures
-    from daq.io.interchange import atomic_path
+    # heavy: imported when the command runs (start-up time of daq --help)
+    from daq.analysis.paper002.analysis import analyse_drum_mu
+    from daq.analysis.paper002.figures import figures
+    from daq.analysis.paper002.kinematics import GUARD_S, V_MIN
 
     res, series = analyse_drum_mu(args.data, rig=args.rig, v_min=V_MIN if args.v_min is None else args.v_min,
                                   guard_s=GUARD_S if args.guard is None else args.guard, mu1=args.mu1,
@@ -56,7 +62,4 @@ def register(sub: argparse._SubParsersAction, analyse: argparse._SubParsersActio
     p.add_argument("--from", dest="t_from", type=float, help="analyse from this time [s]")
     p.add_argument("--to", dest="t_to", type=float, help="... to this time [s]")
     p.set_defaults(func=cmd_drum_mu)
-
-    from daq.analysis.campaign import register as register_campaign
-
     register_campaign(sub)

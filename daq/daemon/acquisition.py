@@ -22,6 +22,8 @@ Stream layout (one rule, keeps host ``t`` and ``device_t`` of every sample exact
   into rows would need resampling or NaN padding and would give up one of the two times;
   consumers that want them together (the online estimator) already hold slower streams
   by time.
+
+Decision record: docs/decisions/0005-daemon-process-layout.md.
 """
 
 from __future__ import annotations
@@ -37,13 +39,12 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from daq.config import CanInstrument, RigConfig, StreamInstrument, ThermocoupleInstrument
+from daq.config import RigConfig
 from daq.io.stream_format import BusEvent, StreamMeta
 from daq.streaming.bus import BusCfg, Publisher
 from drivers.base import ClockSync, DriverEvent, Sample, SampleSource
 from drivers.factory import RigDrivers
 from drivers.motor import MotorError, MotorUnavailable, SerialMotorRegulator
-from drivers.serial_stream import BinaryStreamDriver
 
 log = logging.getLogger(__name__)
 
@@ -116,18 +117,14 @@ class Acquisition:
 
     def _rate(self, name: str) -> float | None:
         inst = self.rig.instruments.get(name)
-        if isinstance(inst, ThermocoupleInstrument):
-            return inst.poll_hz
-        if isinstance(inst, (CanInstrument, StreamInstrument)):
-            return self.rig.sensors.rate_Hz
-        return None
+        return inst.rate_hz(self.rig.sensors.rate_Hz) if inst is not None else None
 
     def _meta(self, stream: str, source: str, channels: tuple[str, ...]) -> StreamMeta:
         return StreamMeta(stream=stream, channels=channels, units=tuple(self._unit(c) for c in channels),
                           rig=self.rig.rig, source=source, rate_hz=self._rate(source))
 
     def _channels(self, name: str, src: SampleSource) -> tuple[str, ...]:
-        if isinstance(src, BinaryStreamDriver):
+        if src.framed:
             return tuple(src.names)
         inst = self.rig.instruments.get(name)
         chans = getattr(inst, "channels", None)
@@ -138,7 +135,7 @@ class Acquisition:
 
     def _route(self, name: str, src: SampleSource) -> _Route:
         chans = self._channels(name, src)
-        if chans and (len(chans) == 1 or isinstance(src, BinaryStreamDriver)):
+        if chans and (len(chans) == 1 or src.framed):
             return _Route(self._meta(name, name, chans), {})
         return _Route(None, {c: self._meta(f"{name}.{c}", name, (c,)) for c in chans})
 

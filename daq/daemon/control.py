@@ -12,6 +12,8 @@ from the message body.
 Messages are one JSON object per frame (``Request`` in, ``Reply`` out). A malformed
 request gets an error reply naming the bad field; neither it nor a handler exception
 stops the server.
+
+Decision record: docs/decisions/0014-safety-in-the-regulator.md.
 """
 
 from __future__ import annotations

@@ -3,6 +3,8 @@
 The daemon starts it (daq/daemon/service.py, EstimatorProcess) so that the estimator's numerics
 never share a GIL with acquisition; the algorithm itself is in daq/estimation/ (online.py on the
 bus, core.py block by block).
+
+Decision record: docs/decisions/0005-daemon-process-layout.md.
 """
 
 from __future__ import annotations

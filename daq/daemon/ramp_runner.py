@@ -18,6 +18,8 @@ are checked on the scaled table, so a compression the drive cannot follow is ref
 Safety stays in the regulator (limits, watchdog, e-stop latch); the runner adds the
 pre-motion check and, on a regulator error mid-ramp, a controlled stop attempt and a
 recorded reason.
+
+Decision record: docs/decisions/0014-safety-in-the-regulator.md.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from daq.errors import InputError
+from daq.errors import DaqError, InputError
 from daq.ramps import Ramp, check_limits, load_ramp, ramp_table
 from drivers.motor import MotorDrive, MotorError, MotorUnavailable
 
@@ -335,5 +337,5 @@ class RampRunner:
         self._emit(RampEvent(state, t, reason=reason))  # type: ignore[arg-type]
 
 
-class _Halted(Exception):
+class _Halted(DaqError):
     """Internal: stop()/estop() ended the run."""

@@ -15,6 +15,8 @@ stops the belt (the daemon's heartbeat thread dies with it), and the estimator a
 recorder notice that their parent is gone (the recorder closes its file cleanly).
 
 For ``daq demo`` and scripts, :func:`run_sim_ramp` runs the whole thing as a library call.
+
+Decision record: docs/decisions/0005-daemon-process-layout.md.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from .acquisition import Acquisition, AcquisitionCfg
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
 
 STANDSTILL = 1e-3  # [m/s]
-ROOT = Path(__file__).resolve().parent.parent  # where `python -m daq...` finds the packages
+ROOT = Path(__file__).resolve().parents[2]  # the repository: where `python -m daq...` finds the packages
 
 
 class DaemonCfg(BaseModel):

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from daq.config import RigConfig
 
 from .differentiate import fir_bank, noise_gain, sg_coefficients
-from .fit import FitResult, FitWindow, fit_law
+from .fit import FitWindow, RunningLawFit, fit_law
 from .regime import classify
 from .rigmodels import RigModel, rig_model
 
@@ -170,7 +170,7 @@ class FrictionEstimator:
             return True
         return False
 
-    def fit_now(self) -> FitResult | None:
+    def fit_now(self) -> RunningLawFit | None:
         """Fit the law on the current window, synchronously (offline use)."""
         data = self.fit_window.select(self.cfg.fit_max_points)
         return None if data is None else fit_law(self.law, data, self.cfg.fit_min_points)
@@ -184,7 +184,7 @@ class ArrayEstimate:
     delay_s: float
     n_taps: int
     lag: int
-    fits: list[FitResult]
+    fits: list[RunningLawFit]
 
 
 def estimate_arrays(cfg: RigConfig, t: np.ndarray, channels: dict[str, np.ndarray], *,

@@ -23,8 +23,11 @@ from .laws import LawDef
 from .regime import switch_distance, switch_positions
 
 
-class FitResult(BaseModel):
-    """One fit of the law over one window: values, standard errors, quality."""
+class RunningLawFit(BaseModel):
+    """One fit of the law over one window of the online estimator: values, standard errors, quality.
+
+    (Not the model fit of daq/models/shooting.py, whose result is a ShootingFit.)
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     rig: str
@@ -113,13 +116,13 @@ class FitWindow:
         return FitData(t_start=float(t[0]), t_end=float(t[-1]), v=v[sel], mu=mu[sel], growing=grow[sel])
 
 
-def fit_law(law: LawDef, data: FitData, min_points: int = 50) -> FitResult:
+def fit_law(law: LawDef, data: FitData, min_points: int = 50) -> RunningLawFit:
     """Least squares of mu(v_rel; theta) on the window; standard errors from the Jacobian."""
     t0 = time.perf_counter()
     free = list(law.free)
     n = data.v.size
     if n < max(min_points, len(free) + 2):
-        return FitResult(rig=law.rig, t_start=data.t_start, t_end=data.t_end, n_points=n, params=dict(law.nominal),
+        return RunningLawFit(rig=law.rig, t_start=data.t_start, t_end=data.t_end, n_points=n, params=dict(law.nominal),
                          free=free, stderr={}, rms=float("nan"), success=False,
                          message=f"only {n} settled slip samples")
     x0 = np.array([law.nominal[k] for k in free])
@@ -147,6 +150,6 @@ def fit_law(law: LawDef, data: FitData, min_points: int = 50) -> FitResult:
         se[seen] = np.sqrt(np.clip(np.diag(np.linalg.pinv(js.T @ js)) * s2, 0.0, None))
     params = dict(fixed)
     params.update({k: float(x) for k, x in zip(free, sol.x)})
-    return FitResult(rig=law.rig, t_start=data.t_start, t_end=data.t_end, n_points=n, params=params, free=free,
+    return RunningLawFit(rig=law.rig, t_start=data.t_start, t_end=data.t_end, n_points=n, params=params, free=free,
                      stderr={k: float(s) for k, s in zip(free, se)}, rms=float(np.sqrt(np.mean(r * r))),
                      success=bool(sol.success), message=str(sol.message)[:200], seconds=time.perf_counter() - t0)

@@ -13,7 +13,9 @@ Published (on its own Publisher):
   stream ``friction_fit``: one sample per fit (t = window end): n_points, rms, each
     free parameter and its standard error (``<name>_se``);
   events: ``estimator_started`` (delay, window, rate as JSON), ``friction_fit``
-    (the FitResult as JSON), ``estimator_gap`` (input gap: the window restarts).
+    (the RunningLawFit as JSON), ``estimator_gap`` (input gap: the window restarts).
+
+Decision record: docs/decisions/0005-daemon-process-layout.md.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from daq.streaming.bus import Publisher, Subscriber
 
 from .align import HoldBuffer, Pending
 from .core import EstimateBlock, EstimatorCfg, FrictionEstimator
-from .fit import FitData, FitResult, fit_law
+from .fit import FitData, RunningLawFit, fit_law
 from .rigmodels import RigModel, rig_model
 
 OUT_UNITS = {"F_est": "N", "N_est": "N", "mu_est": "-", "v_rel": "m/s", "slip": "-", "growing": "-",
@@ -99,7 +101,7 @@ class OnlineEstimator:
         self._fit_meta: StreamMeta | None = None
         self._executor = self._make_executor(online.fit)
         self._fit_future: Future | None = None
-        self.last_fit: FitResult | None = None
+        self.last_fit: RunningLawFit | None = None
         # per published block: the oldest sample's latency and the work it took (for benchmarks, monitoring)
         self.latency_log: deque[float] = deque(maxlen=1_000_000)
         self.work_log: deque[float] = deque(maxlen=1_000_000)
@@ -326,7 +328,7 @@ class OnlineEstimator:
                 self.stats.fits_failed += 1
                 self.pub.event("friction_fit_failed", self.online.source, str(exc)[:200])
 
-    def _publish_fit(self, r: FitResult) -> None:
+    def _publish_fit(self, r: RunningLawFit) -> None:
         """Every fit as an event (JSON); successful ones also as a sample of the fit stream."""
         self.pub.event("friction_fit", self.online.source, r.model_dump_json())
         if not r.success:

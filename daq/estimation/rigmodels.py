@@ -8,6 +8,8 @@ direction is  mass * a = G(state) - F,  so F = mass * (a_without_friction - a), 
 common convention of daq/physics/contact.py (F = mu(v_rel) N, v_rel = body - drive).
 The kernels loop over samples inside numba; they belong in daq/physics next to each
 rhs once the physics owners adopt them (see the estimator report).
+
+Decision record: docs/decisions/0001-physics-in-one-place.md.
 """
 
 from __future__ import annotations

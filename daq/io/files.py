@@ -1,4 +1,7 @@
-"""Writing files so that a crash never leaves a half-written one (stdlib only: any layer may use it)."""
+"""Writing files so that a crash never leaves a half-written one (stdlib only: any layer may use it).
+
+Decision record: docs/decisions/0010-strict-configs-one-line-errors.md.
+"""
 
 from __future__ import annotations
 

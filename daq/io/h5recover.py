@@ -10,6 +10,8 @@ Superblock versions 2 and 3 (the only ones with these flags):
     signature (8) | version (1) | size of offsets O (1) | size of lengths (1) | flags (1) |
     base address (O) | extension address (O) | end-of-file address (O) | root object header (O) |
     checksum (4, Jenkins lookup3 of everything before it)
+
+Decision record: docs/decisions/0004-swmr-hdf5-periodic-flush.md.
 """
 
 from __future__ import annotations

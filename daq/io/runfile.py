@@ -14,6 +14,8 @@ then sees it as a finished file. Declare streams up front to avoid the reopen.
 
 The recorder process (daq/streaming/recorder.py) feeds it from the bus; ``daq import``
 (daq/io/importer.py) writes imported files through it too, so both make the same file.
+
+Decision record: docs/decisions/0004-swmr-hdf5-periodic-flush.md.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from daq import __version__
 from daq.config import RigConfig, config_text
+from daq.errors import DaqError
 from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, STREAM_RESERVED
 from daq.io.stream_format import Block, BusEvent, StreamMeta
 
@@ -48,7 +51,7 @@ class WriterCfg(BaseModel):
     event_chunk: int = Field(1024, ge=16)
 
 
-class BlockRejected(ValueError):
+class BlockRejected(DaqError, ValueError):
     """A well-formed bus message the file cannot hold (bad channel names, a stream that changed shape)."""
 
 

@@ -9,6 +9,8 @@ receives from its first message, without waiting for a restart.
 Wire format (ZeroMQ multipart, no pickling):
     [topic, header JSON, t bytes, data bytes(, device_t bytes)]
 topic = b"S:" + stream name for samples, b"E:" + source for events.
+
+Decision records: docs/decisions/0007-zeromq-bus-pydantic-headers-raw-buffers.md, docs/decisions/0012-layout-by-layer.md.
 """
 
 from __future__ import annotations

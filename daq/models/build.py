@@ -3,6 +3,8 @@
 Why through the simulator's rig adapters: a model *is* the rig's physics with a
 chosen law and effects; building it from a rig config with overridden values and
 an effect vector means the model and the simulated rig cannot drift apart.
+
+Decision record: docs/decisions/0001-physics-in-one-place.md.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import numpy as np
 
 from daq.config import RigConfig
 from daq.errors import InputError
-from daq.physics.effects import CATALOG, E
+from daq.physics.effects import CATALOG
 from daq.sim.effectset import environment_vector
 from daq.sim.rigs import SimRig, make_sim
 
@@ -53,17 +55,14 @@ class Builder:
 
     def effect_vector(self, values: dict[str, float]) -> np.ndarray:
         e = environment_vector(self.cfg)
-        for name in self.model.effects:
+        for name, eff in self.model.effects.items():
             spec = CATALOG.get(name)
-            if spec is None:
+            if spec is None or eff.path is not None:
                 continue  # user effect
-            for ps in spec.params_for(self.cfg.rig):
+            for ps in spec.params_for(self.cfg.rig, eff.form):
                 key = f"effects.{name}.{ps.key}"
                 if key in values:
                     e[ps.slot] = values[key]
-        # belt-speed in a model: the drive is the measured speed, not a lag/ripple model
-        e[E.VB_TAU] = 0.0
-        e[E.VB_RIPPLE] = 0.0
         return e
 
     def sim(self, values: dict[str, float] | None = None) -> SimRig:

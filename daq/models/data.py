@@ -58,6 +58,7 @@ class Measured:
 
 
 class RigData(ABC):
+    drive_channel: str = ""  # the channel that measures the drive (belt or drum speed)
     """What a rig's model needs from data: predicted signals and the state at a window's start."""
 
     rig: str
@@ -173,6 +174,7 @@ def stick_tail(v_rel: np.ndarray, load_rate: np.ndarray, rate: float, cfg: RigCo
 
 
 class BrakeData(RigData):
+    drive_channel = "vb"  # the measured drive: belt speed [m/s]
     rig = "brake-2dof"
     velocity_slots = (1, 3)
     position_slots = (0, 2)
@@ -221,6 +223,7 @@ class BrakeData(RigData):
 
 
 class DrumData(RigData):
+    drive_channel = "drum_speed"  # the measured drive: drum speed [rad/s]
     """drum-pendulum: predicts phi and the surface velocity; the runout phase comes from the thrust gauge."""
 
     rig = "drum-pendulum"

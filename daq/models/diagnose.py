@@ -1,50 +1,88 @@
-"""Which physical effect is the model missing? Score every catalog effect it lacks on held-out data.
+"""Which physical effects is the model missing? Forward selection over the catalog, scored on held-out data.
 
-Why held-out: an effect with free parameters always fits the fit windows a little
-better; only an error that falls on windows the fit never saw is evidence. The
-score is the fraction of the *excess* error (above the noise floor) that the
-effect removes on the held-out windows, less a small charge per added parameter,
-and it must be consistent across windows (Wilcoxon signed-rank, as a z score), not carried by
-one lucky window.
+Why held-out: an effect with free parameters always fits the fit windows a little better; only an
+error that falls on windows the fit never saw is evidence. Why forward selection: a real contact
+carries several effects at once, and none of them need explain half of the excess alone. Each step
+screens every candidate (each catalog effect in each of its forms, and the mechanics parameters: a
+rig is never exactly its config) by the score test of one linearisation (daq/models/screening.py),
+fits the most promising fully, from the current fit with the candidate at neutral (so no fit ends
+worse than the model it extends), and keeps the one whose improvement on the held-out windows is
+significant and consistent (Wilcoxon signed-rank over windows, as a z score) and large enough
+(robust statistics: a window's error is capped at CAP_MS times the median, so no single window
+decides). When no single candidate passes, the best pairs are fitted together. The steps stop when
+nothing more helps; ``found`` is judged on the combined model.
+
+Decision record: docs/decisions/0009-held-out-scoring-and-noise-floor.md.
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing as mp
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from itertools import combinations
 
 import numpy as np
 from scipy import stats
 
 from daq.physics.effects import CATALOG
 
+from .candidates import Candidate, candidates_for
+from .screening import column, linearise, predicted_gain
 from .session import Fitted, Session
-from .shooting import FitResult
-from .spec import Model, add_effect
+from .shooting import ShootingFit
+from .spec import Model
 
 PENALTY_PER_PARAM = 0.02  # reduction an added free parameter must earn
-MIN_REDUCTION = 0.5  # a missing effect must remove at least half the excess error...
+MIN_REDUCTION = 0.5  # the added effects together must remove at least half the excess error...
 MIN_T = 2.33  # ...consistently across held-out windows (Wilcoxon z, one-sided p < 0.01)
 MIN_EXCESS = 0.10  # and there must be an excess to explain: error > 1.1 x noise floor
+MIN_STEP = 0.2  # a step must remove this share of the excess that is left (robust), after the penalty
+CAP_MS = 25.0  # per-window mean-square errors are capped at this many times the base model's median
+MAX_STEPS = 3  # effects added at most in one diagnosis
+FIT_PHENOMENA = 3  # per step, the phenomena with the largest predicted gains get full fits...
+FORM_SHARE = 0.5  # ...each in every form predicted to reach this share of the phenomenon's best form
+PAIR_TOP = 3  # when no single passes: pairs among this many best singles
+MIN_GAIN = 3.3  # a predicted cost decrease below this is noise (0.5 chi2_1 at p = 0.01): not fitted
 
 
 @dataclass
-class Candidate:
-    effect: str
-    reduction: float
-    score: float
+class Scored:
+    """A candidate (or a pair) fitted and scored on the held-out windows."""
+
+    cands: tuple[Candidate, ...]
+    reduction: float  # of the base model's excess error (plain rms over held-out windows, as compare)
+    step_reduction: float  # of the current model's excess (robust), what a step decides on
+    score: float  # step_reduction less the per-parameter charge
     error: float
     t_stat: float
     params_added: int
     values: dict[str, float]
     std: dict[str, float]
+    predicted_gain: float = float("nan")
     fitted: Fitted | None = None
 
+    @property
+    def effect(self) -> str:
+        return " + ".join(c.phenomenon for c in self.cands)
 
-def lacking(model: Model) -> list[str]:
-    """Catalog effects that apply to the model's rig and are not in it."""
-    return [n for n, s in CATALOG.items() if model.rig in s.rigs and n not in model.effects]
+    @property
+    def form(self) -> str | None:
+        forms = [c.form for c in self.cands if c.form]
+        return " + ".join(forms) if forms else None
+
+    @property
+    def label(self) -> str:
+        return " + ".join(c.label for c in self.cands)
+
+
+@dataclass
+class Screened:
+    """A candidate ranked by its predicted gain but not fitted (its phenomenon was not among the best)."""
+
+    cand: Candidate
+    predicted_gain: float
 
 
 def consistency(d: np.ndarray) -> float:
@@ -61,75 +99,107 @@ def consistency(d: np.ndarray) -> float:
     return float(stats.norm.isf(p))
 
 
-def score(base: Fitted, cand: Fitted, effect: str, floor: float, session: Session) -> Candidate:
+def robust_rms(ms: np.ndarray, cap: float) -> float:
+    """rms over windows with each window's mean square capped (no single window decides)."""
+    return float(math.sqrt(np.mean(np.minimum(ms, cap)))) if ms.size else float("nan")
+
+
+def score(base: Fitted, current: Fitted, cand: Fitted, cands: tuple[Candidate, ...], floor: float,
+          session: Session, gain: float = float("nan")) -> Scored:
     primary = session.primary
+    cap = CAP_MS * float(np.median(base.ms_held[primary])) if base.ms_held else float("inf")
     e0, e1 = base.rms(primary), cand.rms(primary)
-    excess = e0 - floor
-    reduction = (e0 - e1) / excess if excess > 0 else 0.0
-    d = session.weighted(base.ms_held) - session.weighted(cand.ms_held)
-    t = consistency(d)
-    added = [k for k in cand.model.free_names() if k not in base.model.params()]
-    new = {k: v for k, v in cand.values.items() if k.startswith(f"effects.{effect}.")}
-    return Candidate(effect, float(reduction), float(reduction - PENALTY_PER_PARAM * len(added)), float(e1), t,
-                     len(added), new, {k: v for k, v in cand.fit.std.items() if k in new}, cand)
+    reduction = (e0 - e1) / (e0 - floor) if e0 > floor else 0.0
+    c0, c1 = robust_rms(current.ms_held[primary], cap), robust_rms(cand.ms_held[primary], cap)
+    step = (c0 - c1) / (c0 - floor) if c0 > floor else 0.0
+    d = session.weighted(current.ms_held) - session.weighted(cand.ms_held)
+    added = [k for k in cand.model.free_names() if k not in current.model.free_names()]
+    new = {k: v for k, v in cand.values.items() if k in added}
+    return Scored(cands, float(reduction), float(step), float(step - PENALTY_PER_PARAM * len(added)), float(e1),
+                  consistency(d), len(added), new, {k: v for k, v in cand.fit.std.items() if k in new}, gain, cand)
 
 
-# --------------------------------------------------------------------------- parallel candidates
+def passes(s: Scored) -> bool:
+    return s.t_stat >= MIN_T and s.score >= MIN_STEP
+
+
+# --------------------------------------------------------------------------- parallel fits
 
 _STATE: dict[str, object] = {}
+FLOOR = "(noise floor)"  # the pool's one task that is not a fit
 
 
-FLOOR = "(noise floor)"  # the pool's one task that is not a candidate
+def _extend(model: Model, cands: tuple[Candidate, ...]) -> Model:
+    for c in cands:
+        model = c.apply(model)
+    return model
 
 
-def _fit_candidate(name: str) -> tuple:
+def _fit_task(task) -> tuple:
     s: Session = _STATE["session"]  # type: ignore[assignment]
-    base: Fitted = _STATE["base"]  # type: ignore[assignment]
-    model: Model = _STATE["model"]  # type: ignore[assignment]
-    if name == FLOOR:
-        return name, s.noise_floor(base)
-    f = s.fit(add_effect(model, name), warm=base)
-    return name, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit
+    current: Fitted = _STATE["current"]  # type: ignore[assignment]
+    if task == FLOOR:
+        return task, s.noise_floor(current)
+    f = s.fit(_extend(current.model, task), warm=current)
+    return task, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit, f.fit.cost, \
+        f.fit.message
 
 
-def fit_candidates(session: Session, model: Model, base: Fitted, names: list[str], workers: int | None = None,
-                   on_done=None, floors: dict | None = None) -> dict[str, Fitted]:
-    """Refit the model once per candidate effect, from the model file's values and from the base fit.
-
-    ``model`` is the model as written (its values are the cold start, what `model add` + refit
-    would use); ``base`` its fit (the warm start). In parallel processes if we can. Given a dict
-    ``floors``, the base fit's noise floor is computed too (filled in): in the pool it fills the gap
-    an odd number of candidates leaves on two cores.
-    """
-    workers = workers or min(len(names) + (floors is not None), os.cpu_count() or 1)
-    out: dict[str, Fitted] = {}
+def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidate, ...]], workers: int | None = None,
+                   on_done=None, floors: dict | None = None) -> dict[tuple[Candidate, ...], Fitted]:
+    """Refit the current model once per extension (a candidate, or a pair), each from the current fit with
+    the new parameters at neutral, in parallel processes if we can. Given a dict ``floors``, the current
+    fit's noise floor is computed too (filled in): in the pool it fills the gap an odd number of fits leaves."""
+    workers = workers or min(len(tasks) + (floors is not None), os.cpu_count() or 1)
+    out: dict[tuple[Candidate, ...], Fitted] = {}
     if workers > 1 and "fork" in mp.get_all_start_methods():
-        _STATE.update(session=session, base=base, model=model)
-        tasks = ([FLOOR] if floors is not None else []) + list(names)
+        _STATE.update(session=session, current=current)
+        todo = ([FLOOR] if floors is not None else []) + list(tasks)
         try:
             with mp.get_context("fork").Pool(workers) as pool:
-                for name, *rest in pool.imap_unordered(_fit_candidate, tasks):
-                    if name == FLOOR:
+                for task, *rest in pool.imap_unordered(_fit_task, todo):
+                    if task == FLOOR:
                         floors.update(rest[0])  # type: ignore[union-attr]
                         continue
-                    values, vel, vel_held, std, ms_held, ms_fit = rest
-                    cand = add_effect(model, name)
-                    free = cand.free_names()
-                    fr = FitResult(values, free, std, vel, session.win.select(False), float("nan"), 0, True)
-                    hr = FitResult(values, [], {}, vel_held, session.win.select(True), float("nan"), 0, True)
-                    out[name] = Fitted(cand.with_values({k: values[k] for k in free}, std), values, fr, hr,
-                                       session.problem(cand), ms_held, ms_fit)
+                    values, vel, vel_held, std, ms_held, ms_fit, cost, message = rest
+                    model = _extend(current.model, task)
+                    free = model.free_names()
+                    fr = ShootingFit(values, free, std, vel, session.win.select(False), cost, 0, True, message)
+                    hr = ShootingFit(values, [], {}, vel_held, session.win.select(True), float("nan"), 0, True)
+                    out[task] = Fitted(model.with_values({k: values[k] for k in free}, std), values, fr, hr,
+                                       session.problem(model), ms_held, ms_fit)
                     if on_done:
-                        on_done(name)
+                        on_done(task)
         finally:
             _STATE.clear()
         return out
     if floors is not None:
-        floors.update(session.noise_floor(base))
-    for name in names:
-        out[name] = session.fit(add_effect(model, name), warm=base)
+        floors.update(session.noise_floor(current))
+    for task in tasks:
+        out[task] = session.fit(_extend(current.model, task), warm=current)
         if on_done:
-            on_done(name)
+            on_done(task)
+    return out
+
+
+# --------------------------------------------------------------------------- screening
+
+
+def to_fit(gains: dict[Candidate, float], first: bool, worth: float = MIN_GAIN) -> list[Candidate]:
+    """The best FIT_PHENOMENA phenomena by predicted gain, each in its forms predicted within FORM_SHARE of
+    its best; candidates predicted below ``worth`` are not worth a fit (noise, or too small a share of the
+    excess to pass MIN_STEP); in the first step the two best phenomena are fitted anyway: the prediction
+    is only first order."""
+    by_phen: dict[str, list[tuple[float, Candidate]]] = {}
+    for c, g in gains.items():
+        by_phen.setdefault(c.phenomenon, []).append((g, c))
+    ranked = sorted(by_phen.values(), key=lambda lst: -max(g for g, _ in lst))
+    out = []
+    for i, lst in enumerate(ranked[:FIT_PHENOMENA]):
+        best = max(g for g, _ in lst)
+        if best < worth and not (first and i < 2):
+            continue
+        out += [c for g, c in sorted(lst, key=lambda gc: -gc[0]) if g >= FORM_SHARE * best or g == best]
     return out
 
 
@@ -177,71 +247,168 @@ class Diagnosis:
     base: Fitted
     floor: float  # of the primary signal
     floors: dict[str, float]  # every output's
-    candidates: list[Candidate]
+    candidates: list[Scored]  # the first step's fitted candidates, best first
     found: bool
     summary: str
     correlations: list[dict]
+    sequence: list[Scored] = field(default_factory=list)  # what was added, step by step
+    screened: list[Screened] = field(default_factory=list)  # first step's candidates not fitted
+    final: Fitted | None = None  # the model with the whole sequence
 
     def as_json(self, session: Session) -> dict:
         primary = session.primary
         unit = session.m.units[primary]
-        best = self.candidates[0] if self.candidates else None
+        best = self.sequence[0] if self.sequence else None
+        final = self.final or self.base
+        e0 = self.base.rms(primary)
+        flagged = session.win.transient if session.win.transient is not None else np.zeros(session.win.starts.size, bool)
         return {
             "data": session.source,
             "model": self.base.model.describe(),
-            "error": self.base.rms(primary),
+            "error": e0,
             "error_unit": unit,
             "error_signal": primary,
             "noise_floor": self.floor,
-            "excess": self.base.rms(primary) - self.floor,
+            "excess": e0 - self.floor,
             "missing_effect_found": self.found,
-            "best": best.effect if (best and self.found) else None,
+            "best": best.cands[0].phenomenon if (best and self.found) else None,
+            "best_form": best.cands[0].form if (best and self.found) else None,
             "summary": self.summary,
-            "candidates": [{"effect": c.effect, "reduction": c.reduction, "score": c.score, "error": c.error,
-                            "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values, "std": c.std}
-                           for c in self.candidates],
+            "sequence": [{"effect": c.phenomenon, "form": c.form, "label": c.label, "step_reduction": s.step_reduction,
+                          "reduction": s.reduction, "consistency_z": s.t_stat, "error": s.error, "values": s.values}
+                         for s in self.sequence for c in s.cands],
+            "final_model": final.model.describe(),
+            "final_error": final.rms(primary),
+            "final_reduction": (e0 - final.rms(primary)) / (e0 - self.floor) if e0 > self.floor else 0.0,
+            "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
+                            "step_reduction": c.step_reduction, "score": c.score, "error": c.error,
+                            "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
+                            "std": c.std, "predicted_gain": c.predicted_gain}
+                           for c in self.candidates]
+                          + [{"effect": s.cand.phenomenon, "form": s.cand.form, "label": s.cand.label, "reduction": None,
+                              "predicted_gain": s.predicted_gain, "fitted": False} for s in self.screened],
             "residual_correlations": self.correlations[:8],
-            "windows": {"length_s": (session.win.length - 1) / session.m.rate, "fit": int((~session.win.held_out).sum()),
-                        "held_out": int(session.win.held_out.sum())},
+            "windows": {"length_s": (session.win.length - 1) / session.m.rate,
+                        "fit": int(session.win.select(False).size), "held_out": int(session.win.select(True).size),
+                        "flagged_transient": [float(session.m.t[session.win.starts[i]]) for i in np.flatnonzero(flagged)]},
             "noise": {"sigma": session.m.sigma, "source": session.m.sigma_source},
         }
 
 
+def add_command(c: Candidate) -> str:
+    """The `daq model add` arguments that add a candidate."""
+    if c.kind == "mechanics":
+        return f"mechanics.{c.name}"
+    return f"{c.name} --form {c.form}" if c.form else c.name
+
+
+def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
+          first: bool) -> tuple[list[Scored], list[Screened], Scored | None]:
+    """One forward-selection step: screen, fit the most promising, pairs if no single passes."""
+    cands = candidates_for(current.model)
+    if not cands:
+        return [], [], None
+    lin = linearise(current)
+    cols = {c: column(session, current, c) for c in cands}
+    gains = {c: predicted_gain(lin, [cols[c]]) for c in cands}
+    worth = MIN_GAIN
+    if not first:  # the excess left, in cost units: a step must be predicted to reach a fair share of it
+        e, f = current.rms(session.primary), floor_holder[session.primary]
+        worth = max(MIN_GAIN, 0.5 * MIN_STEP * lin.cost * max(1.0 - (f / e) ** 2, 0.0))
+    chosen = to_fit(gains, first, worth)
+    top = sorted(gains.items(), key=lambda cg: -cg[1])[:6]
+    say(f"screened {len(cands)} candidates (score test, predicted cost decrease: "
+        + ", ".join(f"{c.label} {g:.3g}" for c, g in top) + f"); fitting {', '.join(c.label for c in chosen) or 'none'}")
+    if not chosen:
+        return [], sorted((Screened(c, g) for c, g in gains.items()), key=lambda s: -s.predicted_gain), None
+    floors = floor_holder if not floor_holder else None
+    fits = fit_extensions(session, current, [(c,) for c in chosen], workers, floors=floors,
+                          on_done=lambda t: say(f"  refitted with {t[0].label}"))
+    floor = floor_holder[session.primary]
+    scored = sorted((score(base, current, fits[(c,)], (c,), floor, session, gains[c]) for c in chosen),
+                    key=lambda s: -s.score)
+    screened = sorted((Screened(c, g) for c, g in gains.items() if c not in chosen), key=lambda s: -s.predicted_gain)
+    ok = [s for s in scored if passes(s)]
+    if ok:
+        return scored, screened, ok[0]
+    # no single passes: the best pairs of different phenomena among the best singles, ranked by prediction
+    top = [s.cands[0] for s in scored[:PAIR_TOP]]
+    pairs = [(a, b) for a, b in combinations(top, 2) if a.phenomenon != b.phenomenon]
+    if not pairs:
+        return scored, screened, None
+    pairs.sort(key=lambda ab: -predicted_gain(lin, [cols[ab[0]], cols[ab[1]]]))
+    say(f"no single candidate passes; fitting pairs: {', '.join(a.label + ' + ' + b.label for a, b in pairs)}")
+    pfits = fit_extensions(session, current, pairs, workers, on_done=lambda t: say(f"  refitted with "
+                                                                                  f"{t[0].label} + {t[1].label}"))
+    pscored = sorted((score(base, current, pfits[p], p, floor, session) for p in pairs), key=lambda s: -s.score)
+    ok = [s for s in pscored if passes(s)]
+    return scored, screened, (ok[0] if ok else None)
+
+
 def diagnose(session: Session, model: Model, progress=None, workers: int | None = None,
-             base: Fitted | None = None) -> Diagnosis:
+             base: Fitted | None = None, max_steps: int = MAX_STEPS) -> Diagnosis:
     say = progress or (lambda msg: None)
-    names = lacking(model)
     if base is None:
         say(f"fitting the model ({len(model.free_names())} free parameters) on {len(session.win.select(False))} windows")
         base = session.fit(model)
-    e0 = base.rms(session.primary)
-    say(f"model error {e0:.4g} {session.m.units[session.primary]}; noise floor and {len(names)} effects to try: "
-        f"{', '.join(names)}")
+    primary = session.primary
+    unit = session.m.units[primary]
+    e0 = base.rms(primary)
+    say(f"model error {e0:.4g} {unit} on held-out windows; screening what it may lack")
     floors: dict[str, float] = {}
-    fits = fit_candidates(session, model, base, names, workers, on_done=lambda n: say(f"  refitted with {n}"),
-                          floors=floors)
-    floor = floors[session.primary]
-    say(f"noise floor {floor:.4g} {session.m.units[session.primary]}")
-    cands = sorted((score(base, fits[n], n, floor, session) for n in names), key=lambda c: -c.score)
+    current, sequence = base, []
+    first_scored: list[Scored] = []
+    first_screened: list[Screened] = []
+    for k in range(max_steps):
+        scored, screened, accepted = _step(session, base, current, floors, say, workers, first=(k == 0))
+        if k == 0:
+            first_scored, first_screened = scored, screened
+            say(f"noise floor {floors[primary]:.4g} {unit}")
+            if e0 <= (1.0 + MIN_EXCESS) * floors[primary]:
+                break
+        if accepted is None:
+            break
+        sequence.append(accepted)
+        current = accepted.fitted
+        say(f"step {k + 1}: + {accepted.label} removes {accepted.step_reduction:.0%} of the excess left "
+            f"(z {accepted.t_stat:.1f}); error {accepted.error:.4g} {unit}")
+        if current.rms(primary) <= (1.0 + MIN_EXCESS) * floors[primary]:
+            break
+    floor = floors[primary]
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
-    best = cands[0] if cands else None
-    found = bool(best and excess_ratio > MIN_EXCESS and best.reduction >= MIN_REDUCTION and best.t_stat >= MIN_T)
+    total = (e0 - current.rms(primary)) / (e0 - floor) if e0 > floor else 0.0
+    z_total = consistency(session.weighted(base.ms_held) - session.weighted(current.ms_held)) if sequence else 0.0
+    found = bool(sequence and excess_ratio > MIN_EXCESS and total >= MIN_REDUCTION and z_total >= MIN_T)
     corr = correlations(session, base)
+    summary = _summary(session, base, current, sequence, first_scored, floor, found, excess_ratio, total, corr)
+    return Diagnosis(base, floor, floors, first_scored, found, summary, corr, sequence, first_screened,
+                     current if sequence else None)
+
+
+def _meaning(c: Candidate) -> str:
+    if c.kind == "mechanics":
+        return "the rig's " + c.name.split("_")[0] + " differs from its config"
+    return CATALOG[c.name].form_meaning(c.form)
+
+
+def _summary(session: Session, base: Fitted, final: Fitted, sequence: list[Scored], scored: list[Scored],
+             floor: float, found: bool, excess_ratio: float, total: float, corr: list[dict]) -> str:
     unit = session.m.units[session.primary]
+    e0, e1 = base.rms(session.primary), final.rms(session.primary)
     if found:
-        vals = ", ".join(f"{k.rsplit('.', 1)[-1]} = {v:.4g}" for k, v in best.values.items())
-        summary = (f"The model misses '{best.effect}' ({CATALOG[best.effect].meaning}). Adding it removes "
-                   f"{best.reduction:.0%} of the excess error on held-out windows ({e0:.3g} -> {best.error:.3g} {unit}, "
-                   f"noise floor {floor:.3g}); fitted {vals or 'no parameters'}.")
-        if len(cands) > 1 and cands[1].reduction >= MIN_REDUCTION:
-            summary += f" Runner-up: '{cands[1].effect}' ({cands[1].reduction:.0%})."
-    elif excess_ratio <= MIN_EXCESS:
-        summary = (f"No missing effect: the model's error ({e0:.3g} {unit}) is within {MIN_EXCESS:.0%} of the noise "
-                   f"floor ({floor:.3g} {unit}).")
-    else:
-        strong = [c for c in corr if abs(c["spearman_rho"]) > 0.3 and c["p_value"] < 0.01]
-        follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in strong[:4]) or "nothing measured"
-        summary = (f"The model's error ({e0:.3g} {unit}) is {excess_ratio:.1f}x above the noise floor, but no catalog "
-                   f"effect explains it (best: '{best.effect if best else '-'}', {best.reduction if best else 0:.0%}). "
-                   f"The residual follows: {follows}.")
-    return Diagnosis(base, floor, floors, cands, found, summary, corr)
+        added = [c for s in sequence for c in s.cands]
+        names = "; ".join(f"'{c.label}' ({_meaning(c)})" for c in added)
+        vals = ", ".join(f"{k.split('.', 1)[-1]} = {v:.4g}" for s in sequence for k, v in s.values.items())
+        cmds = "; ".join(f"daq model add MODEL {add_command(c)}" for c in added)
+        return (f"The model misses {names}. Together they remove {total:.0%} of the excess error on held-out windows "
+                f"({e0:.3g} -> {e1:.3g} {unit}, noise floor {floor:.3g}); fitted {vals or 'no parameters'}. "
+                f"To add: {cmds}.")
+    if excess_ratio <= MIN_EXCESS:
+        return (f"No missing effect: the model's error ({e0:.3g} {unit}) is within {MIN_EXCESS:.0%} of the noise "
+                f"floor ({floor:.3g} {unit}).")
+    strong = [c for c in corr if abs(c["spearman_rho"]) > 0.3 and c["p_value"] < 0.01]
+    follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in strong[:4]) or "nothing measured"
+    best = scored[0] if scored else None
+    return (f"The model's error ({e0:.3g} {unit}) is {excess_ratio:.1f}x above the noise floor, but no catalog "
+            f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}). "
+            f"The residual follows: {follows}.")

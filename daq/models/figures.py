@@ -104,7 +104,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax = fig.add_subplot(gs[2, 2])
     ax.axis("off")
     lines = [f"error {result['error']:.3g} {unit} (noise floor {result['noise_floor']:.3g})",
-             f"held-out error {result['error_held_out']:.3g}", ""]
+             f"(on held-out windows; all windows {result['error_all_windows']:.3g})", ""]
     for k, d in result["invariants"].items():
         lines.append(f"{k}: measured {d['measured']:.4g}, model {d['model']:.4g}")
     lines.append("")
@@ -137,13 +137,17 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     fig = plt.figure(figsize=(15, 5), constrained_layout=True)
     gs = fig.add_gridspec(1, 3)
     ax = fig.add_subplot(gs[0, 0])
-    names = [c.effect for c in diag.candidates][::-1]
+    added = {s.label for s in diag.sequence} if diag.found else set()
+    names = [c.label for c in diag.candidates][::-1]
     red = [c.reduction for c in diag.candidates][::-1]
-    ax.barh(names, red, color=["C2" if (diag.found and n == diag.candidates[0].effect) else "C0" for n in names])
+    ax.barh(names, red, color=["C2" if n in added else "C0" for n in names])
+    if diag.sequence and diag.final is not None:
+        total = (diag.base.rms(primary) - diag.final.rms(primary)) / max(diag.base.rms(primary) - diag.floor, 1e-300)
+        ax.axvline(total, color="C2", ls="--", label=f"added together: {total:.0%}")
     ax.axvline(0.5, color="k", ls=":", label="needed to count")
-    ax.set_xlabel("share of excess error removed on held-out windows")
+    ax.set_xlabel("share of excess error removed on held-out windows (alone)")
     ax.set_xlim(min(-0.2, min(red) if red else 0), 1.1)
-    ax.set_title("which effect is missing?")
+    ax.set_title("which effect is missing? (fitted candidates of step 1)")
     ax.legend(fontsize=8)
     # evidence: the held-out window where the base model is worst, base vs best candidate
     ax = fig.add_subplot(gs[0, 1:])
@@ -156,12 +160,12 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
         t = m.t[sb.index[0]]
         ax.plot(t, sb.meas[primary][0], "k.", ms=3, label="measured (held out)")
         ax.plot(t, sb.pred[primary][0], "C0-", label=f"model: {base.model.describe()}")
-        best = diag.candidates[0]
-        if best.fitted is not None:
-            bf = best.fitted
+        bf = diag.final if diag.final is not None else diag.candidates[0].fitted
+        if bf is not None:
             vel = bf.problem.fit_starts(bf.values, w, max_iter=25).start_values
             sc = bf.problem.shoot(bf.values, w, vel)
-            ax.plot(t, sc.pred[primary][0], "C2-", label=f"+ {best.effect}")
+            label = " + ".join(s.label for s in diag.sequence) if diag.final is not None else diag.candidates[0].label
+            ax.plot(t, sc.pred[primary][0], "C2-", label=f"+ {label}")
         ax.set_xlabel("t [s]")
         ax.set_ylabel(f"{primary} [{unit}]")
         ax.legend(fontsize=8)

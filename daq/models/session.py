@@ -3,12 +3,14 @@
 Why a session: compare, fit and diagnose all judge models on *the same* windows
 of *the same* data (fit windows and held-out windows), so errors of different
 model revisions can be compared at all.
+
+Decision record: docs/decisions/0009-held-out-scoring-and-noise-floor.md.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +23,8 @@ from daq.physics.effects import CATALOG
 
 from .build import Builder
 from .data import Measured, RigData, rig_data
-from .shooting import FitResult, Problem, Windows, make_windows
-from .spec import Model, drive_source, rig_config_for
+from .shooting import Problem, ShootingFit, Windows, make_windows
+from .spec import STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
 
 MIN_CONTINUATION = 8  # samples
 PROBE_ITER = 5  # iterations each start gets before the best one goes on
@@ -34,25 +36,38 @@ class Fitted:
 
     model: Model  # with fitted values (and their std)
     values: dict[str, float]
-    fit: FitResult  # fit windows
-    held: FitResult  # held-out windows (start values only)
+    fit: ShootingFit  # fit windows
+    held: ShootingFit  # held-out windows (start values only)
     problem: Problem
     ms_held: dict[str, np.ndarray]  # per held-out window, mean-square error per output
     ms_fit: dict[str, np.ndarray]
+    _all_starts: np.ndarray | None = field(default=None, repr=False)  # start_values() of every window, once
 
     def rms(self, output: str, which: str = "held") -> float:
-        ms = self.ms_held[output] if which == "held" else (
-            self.ms_fit[output] if which == "fit" else np.concatenate([self.ms_fit[output], self.ms_held[output]]))
+        """rms error of one output over the held-out windows ("held"; the fit windows when a record is too short
+        to hold any out), the fit windows ("fit") or both ("all")."""
+        held = self.ms_held.get(output, np.zeros(0))
+        if which == "held" and held.size == 0:
+            which = "fit"
+        ms = held if which == "held" else (
+            self.ms_fit[output] if which == "fit" else np.concatenate([self.ms_fit[output], held]))
         return float(math.sqrt(np.mean(ms))) if ms.size else float("nan")
 
-    def start_values(self) -> np.ndarray:
-        """Start values (the free start-state entries) of every window of the session (fit windows' from the fit, held-out from theirs)."""
-        vel = np.zeros((self.fit.windows.size + (self.held.windows.size if self.held is not self.fit else 0),
-                        self.fit.start_values.shape[1]))
+    def start_values(self, windows: np.ndarray | None = None) -> np.ndarray:
+        """Start values (the free start-state entries) of every window of the session, or of ``windows``: the fit
+        windows' from the fit, the held-out ones' from theirs, any other (a flagged transient) fitted here."""
+        if self._all_starts is not None:
+            return self._all_starts if windows is None else self._all_starts[windows]
+        n = int(self.problem.win.starts.size)
+        vel = np.full((n, self.fit.start_values.shape[1]), np.nan)
         vel[self.fit.windows] = self.fit.start_values
         if self.held is not self.fit:
             vel[self.held.windows] = self.held.start_values
-        return vel
+        rest = np.flatnonzero(np.isnan(vel[:, 0]))
+        if rest.size:
+            vel[rest] = self.problem.fit_starts(self.values, rest, max_iter=25).start_values
+        self._all_starts = vel
+        return vel if windows is None else vel[windows]
 
 
 class Session:
@@ -79,40 +94,60 @@ class Session:
         return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model))
 
     def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 40) -> Fitted:
-        """Fit the model's free parameters on the fit windows, then score it on the held-out ones."""
+        """Fit the model's free parameters on the fit windows, then score it on the held-out ones.
+
+        Starts (each probed for PROBE_ITER iterations on the windows' first halves; the best goes on):
+        the model file's values (what `model add` + `compare` does: an added effect sits at its neutral
+        value, i.e. exactly where the model without it is); the same with every free effect strength that
+        sits at neutral moved to a generic non-zero start (an error surface flat at neutral, e.g. a
+        symmetric term, would stall there); and, when refining a fitted model (``warm``), its fitted values
+        with the new parameters at the file's values, and at the non-zero starts. Whatever wins, the result
+        is never worse on the fit windows than the model it extends: a fit that ends above ``warm``'s cost
+        is redone from the nested start. A free parameter that never left its start value (and is not at
+        a bound) marks a stalled fit: it is restarted from moved starts and the better one kept.
+        """
         pr = self.problem(model)
         params = model.params()
         free = model.free_names()
         bounds = {n: (params[n].lo if params[n].lo is not None else -np.inf,
                       params[n].hi if params[n].hi is not None else np.inf) for n in free}
-        # Starts: the model file's values (what `model add` + refit does), and, when refining a fitted
-        # model, its fitted values with the new effect at its start values and switched off. No one
-        # start is safe: the warm ones can sit in the smaller model's compromise (a local minimum, e.g.
-        # bearing friction hidden behind extra damping), the cold one can be far away (force-rate needs
-        # the fitted level and a non-zero gain). All run on half windows; the best goes on.
-        starts: list[tuple[dict[str, float], np.ndarray | None]] = [(dict(pr.builder.base_values), None)]
+        file_values = dict(pr.builder.base_values)
+        moved = strength_starts(model, file_values)
+        starts: list[tuple[dict[str, float], np.ndarray | None]] = [(file_values, None)]
+        if moved:
+            starts.append(({**file_values, **moved}, None))
+        nested = None
         if warm is not None:
             new = self._new_keys(warm.model, model)
-            values = dict(pr.builder.base_values)
+            values = dict(file_values)
             values.update({k: v for k, v in warm.values.items() if k in values and k not in new})
-            starts.append((dict(values), warm.fit.start_values))  # the new effect at its start values
-            off = switched_off(model, new)
-            if any(values[k] != v for k, v in off.items()):
-                values.update(off)
-                starts.append((values, warm.fit.start_values))  # ... and switched off
+            nested = (dict(values), warm.fit.start_values)
+            starts.append(nested)
+            moved_new = {k: v for k, v in moved.items() if k in new}
+            if moved_new:
+                starts.append(({**values, **moved_new}, warm.fit.start_values))
+        # the same values twice (a model file that holds the fitted values of the model it extends): keep the
+        # start with the warm start values, the later one
+        unique: dict[tuple, tuple] = {}
+        for values, vel in starts:
+            unique[tuple(sorted(values.items()))] = (values, vel)
+        starts = list(unique.values())
         fw, hw = self.win.select(False), self.win.select(True)
-        half = max(MIN_CONTINUATION, self.win.length // 2)
-        # first on the windows' first halves: less nonlinear (a shifted break-away costs less), cheaper;
-        # with several starts each gets PROBE_ITER iterations and only the best goes on (the others
-        # used to run their whole half-window budget: half of a candidate's simulations)
-        probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
-        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half)
-                    for values, vel in starts), key=lambda f: f.cost)
-        if probe < max_iter // 2:
-            best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
-                          max_iter=max_iter // 2 - probe, length=half)
-        values, vel = best.values, best.start_values
-        res = pr.fit(values, free, bounds, fw, start_values=vel, max_iter=max_iter)
+        res = self._fit_from(pr, starts, free, bounds, fw, max_iter)
+        if nested is not None and res.cost > warm.fit.cost * (1.0 + 1e-9):
+            again = self._fit_from(pr, [nested], free, bounds, fw, max_iter)
+            res = again if again.cost < res.cost else res
+        stalled = self._stalled(res, starts, free, bounds)
+        if stalled:
+            kick = {}
+            for k in stalled:
+                lo, hi = bounds[k]
+                span = (hi - lo) if np.isfinite(hi - lo) else max(abs(res.values[k]), 1.0)
+                kick[k] = float(np.clip(res.values[k] + 0.05 * span, lo, hi))
+            again = self._fit_from(pr, [({**res.values, **kick}, res.start_values)], free, bounds, fw, max_iter)
+            if again.cost < res.cost:
+                res = again
+            res.message += f"; stalled in {', '.join(stalled)}: restarted"
         # A joint LM step can throw one window's start values into a poor local minimum that the
         # global cost hides; re-fit every fit window's start values from the data (parameters fixed, as
         # for held-out windows) and keep, per window, the better of the two.
@@ -125,6 +160,33 @@ class Session:
         return Fitted(fitted_model, res.values, res, held, pr,
                       pr.window_errors(res.values, hw, held.start_values) if hw.size else {},
                       pr.window_errors(res.values, fw, res.start_values))
+
+    def _fit_from(self, pr: Problem, starts: list, free: list[str], bounds: dict, fw: np.ndarray,
+                  max_iter: int) -> ShootingFit:
+        """First on the windows' first halves (less nonlinear: a shifted break-away costs less; cheaper),
+        each start PROBE_ITER iterations and only the best goes on, then on the whole windows."""
+        half = max(MIN_CONTINUATION, self.win.length // 2)
+        probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
+        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half)
+                    for values, vel in starts), key=lambda f: f.cost)
+        if probe < max_iter // 2:
+            best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
+                          max_iter=max_iter // 2 - probe, length=half)
+        return pr.fit(best.values, free, bounds, fw, start_values=best.start_values, max_iter=max_iter)
+
+    @staticmethod
+    def _stalled(res: ShootingFit, starts: list, free: list[str], bounds: dict) -> list[str]:
+        """Free parameters still exactly at the value every start gave them, and not at a bound."""
+        out = []
+        for k in free:
+            v = res.values[k]
+            if any(v != values.get(k) for values, _ in starts):
+                continue
+            lo, hi = bounds[k]
+            if v <= lo or v >= hi:
+                continue
+            out.append(k)
+        return out
 
     def weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
         """Per window: the mean-square error of all outputs, each in units of its noise."""
@@ -167,11 +229,22 @@ class Session:
         for k, x in pred.items():
             ch[k] = x + rng.normal(0.0, self.m.sigma[k], x.size)
         ch.update(self.rd.synthetic_extras(fitted.problem.sim(fitted.values), states, aux, ch, rng))
+        dc = self.rd.drive_channel
+        if fitted.problem.drive == "measured" and dc in ch:
+            # a model driven by the measured speed also carries that measurement's error: the synthetic drive
+            # channel is the smooth drive the model ran on plus the real one's noise, shifted in time (another
+            # realisation, same level, quantisation and hold), so the floor includes what no model can undo
+            raw = np.asarray(self.rec.channels[dc], dtype=float)[idx]
+            scale = self.m.drive_measured[idx] / np.where(raw != 0, raw, 1.0)
+            scale = float(np.median(scale[np.isfinite(scale) & (raw != 0)])) if np.any(raw != 0) else 1.0
+            smooth_raw = self.m.drive_measured[idx] / scale  # the drive in the channel's own unit
+            noise = raw - smooth_raw
+            ch[dc] = smooth_raw + np.roll(noise, int(rng.integers(noise.size // 4, 3 * noise.size // 4 + 1)))
         syn = Recording(self.rec.rig, self.m.t[idx], ch, self.rec.units, {}, {})
         s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size)
         s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
         pr = s.problem(fitted.model)
-        allw = s.win.select(None)
+        allw = np.concatenate([s.win.select(False), s.win.select(True)])  # transients left out, as in the scores
         vel = pr.fit_starts(fitted.values, allw, max_iter=25)
         ms = pr.window_errors(fitted.values, allw, vel.start_values)
         # A window whose start-velocity fit ran away (seen once in 90 windows on a 600 s record) is
@@ -181,17 +254,20 @@ class Session:
         return {k: float(math.sqrt(np.mean(v[keep]))) for k, v in ms.items()}
 
 
-def switched_off(model: Model, keys: set[str]) -> dict[str, float]:
-    """Start values for an effect added to a fitted model: its strength at neutral, so the fit
-    starts exactly where the smaller model ended and can only improve on it."""
-
+def strength_starts(model: Model, values: dict[str, float]) -> dict[str, float]:
+    """Generic non-zero starts for every free catalog-effect strength that sits at its neutral value."""
     out = {}
-    for k in keys:
-        _, name, key = k.split(".", 2)
+    for name, eff in model.effects.items():
         spec = CATALOG.get(name)
-        if spec is None:
+        if spec is None or eff.path is not None:
             continue
-        plist = spec.params_for(model.rig)
-        if plist and plist[0].key == key and model.params()[k].free:
-            out[k] = plist[0].neutral  # the first parameter of every catalog effect is its strength
+        key = strength_key(model.rig, name, eff.form)
+        full = f"effects.{name}.{key}"
+        start = STRENGTH_START.get(form_key(name, eff.form))
+        if key is None or start is None or full not in values or not model.params()[full].free:
+            continue
+        neutral = spec.params_for(model.rig, eff.form)[0].neutral
+        if values[full] == neutral:
+            p = model.params()[full]
+            out[full] = float(np.clip(start, p.lo if p.lo is not None else -np.inf, p.hi if p.hi is not None else np.inf))
     return out

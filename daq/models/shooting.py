@@ -7,9 +7,11 @@ so transitions are judged by what the model predicts, not by a derivative.
 Windows are short (about one stick-slip cycle and a half) so phase drift cannot
 build up; each window's initial velocities are free (they are not measured; at
 slow sampling the start positions too, see RigData.start_slots: the "start
-values"), and the model's free parameters are shared by all windows. scipy's
-``least_squares`` gets the Jacobian's block sparsity, so one Jacobian costs
-(free parameters + start values per window) evaluations, however many windows.
+values"), and the model's free parameters are shared by all windows. Our own
+Levenberg-Marquardt (:meth:`Problem.fit`) solves the normal equations through the Schur
+complement over the per-window start values, so one Jacobian costs (free parameters + start
+values per window) batched simulations however many windows there are, and Broyden updates
+carry it between refreshes. Decision record: docs/decisions/0002-output-error-by-multiple-shooting.md.
 """
 
 from __future__ import annotations
@@ -32,16 +34,24 @@ MIN_WINDOW_SAMPLES = 12
 START_DAMPING = 100.0
 
 
+TRANSIENT_SLOPE = 10.0  # a window whose drive command changes this many times faster than the median is a transient
+
+
 @dataclass
 class Windows:
     starts: np.ndarray  # sample index of each window's start
     length: int  # samples per window, start included
     held_out: np.ndarray  # bool per window: scored but not fitted
+    transient: np.ndarray | None = None  # bool per window: the drive accelerates from rest or stops (flagged)
 
     def select(self, held_out: bool | None) -> np.ndarray:
+        """Fit (False) or held-out (True) windows, transients left out; None: every window, transients too."""
         if held_out is None:
             return np.arange(self.starts.size)
-        return np.flatnonzero(self.held_out == held_out)
+        keep = self.held_out == held_out
+        if self.transient is not None:
+            keep &= ~self.transient
+        return np.flatnonzero(keep)
 
 
 def dominant_period(m: Measured, fmin: float = 0.5) -> float:
@@ -102,7 +112,27 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
     held = (np.arange(s.size) % held_out_every) == held_out_every - 1
     if s.size < 3:
         held[:] = False
-    return Windows(s, L, held)
+    return Windows(s, L, held, transient_windows(m, s, L))
+
+
+def transient_windows(m: Measured, starts: np.ndarray, length: int) -> np.ndarray:
+    """Windows in which the drive command changes much faster than over the record's typical window
+    (the lead-in from rest, an abrupt stop): the model's drive there is least certain (a regulator ramps
+    within its own limits) and one such window can carry more error than all the others together. They
+    are flagged, scored in the all-window error and in the report, but neither fit nor decide.
+    Both the command (noise-free; a step in it is what a drive lags behind) and the measured speed
+    (smoothed over +-0.25 s; it shows the drive's own ramp after a step that came before the window).
+    """
+    slope = np.maximum(np.abs(np.gradient(m.drive_command, 1.0 / m.rate)),
+                       np.abs(np.gradient(m.drive_measured, 1.0 / m.rate)))
+    idx = starts[:, None] + np.arange(length)[None, :]
+    per_window = slope[idx].max(axis=1)
+    typical = float(np.median(per_window))
+    scale = max(typical, 1e-3 * float(np.max(np.abs(m.drive_command))))  # a constant drive: tiny median
+    out = per_window > TRANSIENT_SLOPE * scale
+    if out.sum() > 0.25 * out.size:  # a record that is mostly transients: nothing is flagged
+        out[:] = False
+    return out
 
 
 def start_jacobian(resid, V: np.ndarray, r: np.ndarray, vscale: np.ndarray) -> np.ndarray:
@@ -117,7 +147,7 @@ def start_jacobian(resid, V: np.ndarray, r: np.ndarray, vscale: np.ndarray) -> n
 
 
 @dataclass
-class FitResult:
+class ShootingFit:
     values: dict[str, float]  # all parameter values (fixed ones included)
     free: list[str]
     std: dict[str, float]
@@ -216,7 +246,7 @@ class Problem:
 
     def fit(self, values: dict[str, float], free: list[str], bounds: dict[str, tuple[float, float]],
             windows: np.ndarray, start_values: np.ndarray | None = None, max_iter: int = 25,
-            length: int | None = None) -> FitResult:
+            length: int | None = None) -> ShootingFit:
         """Least squares over the free parameters and every window's start values.
 
         Levenberg-Marquardt on the block structure of multiple shooting: the start
@@ -320,7 +350,7 @@ class Problem:
         vals = dict(values)
         vals.update({n: float(theta[i]) for i, n in enumerate(free)})
         std = self._stds(Jg if k else None, Jv, cost, R.size, k, nv, nw, free)
-        return FitResult(vals, list(free), std, V.copy(), windows, cost, nfev, success, message)
+        return ShootingFit(vals, list(free), std, V.copy(), windows, cost, nfev, success, message)
 
     @staticmethod
     def _stds(Jg, Jv, cost: float, m: int, k: int, nv: int, nw: int, free: list[str]) -> dict[str, float]:
@@ -335,7 +365,7 @@ class Problem:
         cov = np.linalg.pinv(S) * s2
         return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
 
-    def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10) -> FitResult:
+    def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10) -> ShootingFit:
         """Only the start unknowns (the model fixed): how well can this model follow these windows.
 
         Why a Levenberg-Marquardt per window and not one over all of them: with the model fixed the
@@ -404,7 +434,7 @@ class Problem:
                 J[redo] = jac(V[redo], redo, R[redo])
         # summary over windows, as the joint fit reports it
         message = "converged" if not active.any() else "iteration limit"
-        return FitResult(dict(values), [], {}, V, windows, float(np.sum(cost)), nfev, not active.any(), message)
+        return ShootingFit(dict(values), [], {}, V, windows, float(np.sum(cost)), nfev, not active.any(), message)
 
     # ------------------------------------------------------------------ scores
 

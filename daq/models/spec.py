@@ -56,10 +56,11 @@ class Param(BaseModel):
 
 
 class Effect(BaseModel):
-    """An effect in the model: catalog name (or a user effect with ``path``) and its parameters."""
+    """An effect in the model: catalog name (or a user effect with ``path``), its form and its parameters."""
 
     model_config = ConfigDict(extra="forbid")
     path: str | None = None
+    form: str | None = None  # one of the catalog effect's forms; None = its default form
     params: dict[str, Param] = Field(default_factory=dict)
 
 
@@ -110,7 +111,13 @@ class Model(BaseModel):
         return hashlib.sha256(dumps(self).encode()).hexdigest()[:10]
 
     def describe(self) -> str:
-        return f"{self.rig} / {self.law} + " + (", ".join(self.effects) or "no effects")
+        return f"{self.rig} / {self.law} + " + (", ".join(effect_label(n, e.form) for n, e in self.effects.items())
+                                                 or "no effects")
+
+
+def effect_label(name: str, form: str | None) -> str:
+    """``name`` or ``name (form)``: how a report names an effect in one of its other forms."""
+    return f"{name} ({form})" if form else name
 
 
 # ----------------------------------------------------------------------------- TOML in and out
@@ -155,8 +162,11 @@ def parse_model(data: dict[str, Any], source: str) -> Model:
         path = body.get("path")
         if path is not None and not isinstance(path, str):
             raise InputError(source, f"effects.{name}.path", "must be a string")
-        params = {k: _param(v, f"effects.{name}.{k}", source) for k, v in body.items() if k != "path"}
-        effects[name] = Effect(path=path, params=params)
+        form = body.get("form")
+        if form is not None and not isinstance(form, str):
+            raise InputError(source, f"effects.{name}.form", "must be a string (one of the effect's forms)")
+        params = {k: _param(v, f"effects.{name}.{k}", source) for k, v in body.items() if k not in ("path", "form")}
+        effects[name] = Effect(path=path, form=form, params=params)
     out["effects"] = effects
     if "fit" in data:
         out["fit"] = FitInfo.model_validate(data["fit"])
@@ -185,7 +195,10 @@ def check_model(model: Model, source: str) -> None:
                              "a user effect needs path = \"file.py\")")
         if model.rig not in spec.rigs:
             raise InputError(source, f"effects.{name}", f"does not apply to {model.rig}")
-        keys = {ps.key for ps in spec.params_for(model.rig)}
+        if eff.form is not None and eff.form != spec.default_form and eff.form not in spec.forms:
+            have = ", ".join(f for f in spec.form_names() if f) or "only its default form"
+            raise InputError(source, f"effects.{name}.form", f"unknown form {eff.form!r} (has {have})")
+        keys = {ps.key for ps in spec.params_for(model.rig, eff.form)}
         for k in eff.params:
             if k not in keys:
                 raise InputError(source, f"effects.{name}.{k}", f"unknown parameter (has {', '.join(sorted(keys))})")
@@ -243,6 +256,8 @@ def dumps(model: Model) -> str:
         lines += ["", f"[effects.{name}]"]
         if eff.path:
             lines.append(f"path = {_scalar(eff.path)}")
+        if eff.form:
+            lines.append(f"form = {_scalar(eff.form)}")
         lines += [f"{k} = {_param_toml(v)}" for k, v in eff.params.items()]
     if model.fit is not None:
         lines += ["", "[fit]"] + [f"{k} = {_scalar(v)}" for k, v in model.fit.model_dump(exclude_none=True).items()]
@@ -264,41 +279,57 @@ FREE_LAW: dict[str, dict[str, tuple[float, float]]] = {
     "belt-ndof": {"f_s0": (0.05, 5.0), "f_k0": (0.05, 5.0), "k_fall": (0.0, 5.0)},
 }
 
-# Start values of an added effect's free parameters: generic, deliberately not the
-# simulator's hidden magnitudes (a fit must find those). Keys not here start at the
-# catalog's neutral value; FIXED keys stay at the given value and are not fitted.
+# Start values of an added effect's free parameters other than its strength (the strength, the first
+# parameter of every catalog effect, starts at its neutral value: the extended model starts exactly
+# where the model without it is; see STRENGTH_START for the second start a fit also tries). Keyed by
+# effect name, or "name/form" for another form. FIXED keys stay at the given value and are not fitted.
 START: dict[str, dict[str, float]] = {
     "normal-load": {"weight": 1.0},
     "geometric": {"weight": 1.0},
-    "accel-sign": {"amp": 0.05},
-    "stick-time": {"gain": 0.2, "tau": 0.5},
-    "force-rate": {"gain": 0.1, "q0": 1.0},
-    "bearing-friction": {"torque": 0.001, "mu1": 0.02},
-    "temperature": {"coef": 0.0},
-    "velocity-strengthening": {"D": 0.1},
+    "stick-time": {"tau": 0.5},
+    "stick-time/log": {"tau": 0.05},
+    "force-rate": {"q0": 1.0},
+    "belt-speed/lag-ripple": {"ripple": 0.0},
+}
+# A second start for the strength (generic magnitudes, deliberately not the simulator's hidden ones):
+# where an effect's error surface is flat at neutral (a symmetric term), the fit starts here too.
+STRENGTH_START: dict[str, float] = {
+    "accel-sign": 0.05, "accel-sign/body": 0.05, "stick-time": 0.2, "stick-time/log": 0.1, "force-rate": 0.1,
+    "bearing-friction": 0.001, "temperature": -0.005, "temperature/arrhenius": 300.0, "velocity-strengthening": 0.1,
+    "viscous-damping": 0.01, "belt-speed/lag-ripple": 0.1,
 }
 FIXED: dict[str, set[str]] = {
     "normal-load": {"weight"},  # structural: the load is followed, or it is not
     "geometric": {"weight"},
     "temperature": {"ref"},  # degenerate with the law's own level; set to the rig's ambient
+    "temperature/arrhenius": {"ref"},
     "force-rate": {"q0"},  # gain ln(1 + q/q0) ~ gain ln q - gain ln q0: q0 trades off against the peak
-    "belt-speed": {"tau", "ripple", "wavelength"},  # in a model: drive with the measured speed
+    "belt-speed/lag-ripple": {"ripple", "wavelength"},  # the lag is fitted; a ripple's wavelength is not found by LM
 }
 
 
-def effect_params(rig: str, name: str, cfg: RigConfig) -> dict[str, Param]:
-    """The parameters an effect brings when added to a model: free within the catalog bounds."""
+def form_key(name: str, form: str | None) -> str:
+    return f"{name}/{form}" if form else name
+
+
+def strength_key(rig: str, name: str, form: str | None = None) -> str | None:
+    """The parameter that switches a catalog effect on (its first), or None (no parameters)."""
+    plist = CATALOG[name].params_for(rig, form)
+    return plist[0].key if plist else None
+
+
+def effect_params(rig: str, name: str, cfg: RigConfig, form: str | None = None) -> dict[str, Param]:
+    """The parameters an effect brings when added to a model: free within the catalog bounds, the strength
+    at its neutral value (the model with the effect added is exactly the model without it)."""
     params: dict[str, Param] = {}
-    for ps in CATALOG[name].params_for(rig):
-        if ps.key in FIXED.get(name, set()):
-            value = START.get(name, {}).get(ps.key, ps.neutral)
-            if name == "temperature" and ps.key == "ref":
-                value = cfg.contact.t_ambient_C
-            if name == "belt-speed":
-                continue  # nothing to store: the effect switches the drive to the measured speed
+    key = form_key(name, form)
+    for ps in CATALOG[name].params_for(rig, form):
+        value = START.get(key, {}).get(ps.key, ps.neutral)
+        if ps.key == "ref" and name == "temperature":
+            value = cfg.contact.t_ambient_C
+        if ps.key in FIXED.get(key, set()):
             params[ps.key] = Param(value=value)
         else:
-            value = START.get(name, {}).get(ps.key, ps.neutral)
             params[ps.key] = Param(value=value, free=True, lo=ps.lo, hi=ps.hi)
     return params
 
@@ -327,8 +358,9 @@ def seed_model(rig: str) -> Model:
                  friction=friction, effects=effects)
 
 
-def add_effect(model: Model, name: str, source: str = "model add", path: str | None = None) -> Model:
-    """The model with one more effect (catalog name, or a user effect file)."""
+def add_effect(model: Model, name: str, source: str = "model add", path: str | None = None,
+               form: str | None = None) -> Model:
+    """The model with one more effect (catalog name in one of its forms, or a user effect file)."""
     if name in model.effects:
         raise InputError(source, name, "the model already has this effect")
     m = model.model_copy(deep=True)
@@ -343,7 +375,12 @@ def add_effect(model: Model, name: str, source: str = "model add", path: str | N
         raise InputError(source, name, f"unknown effect (catalog: {', '.join(CATALOG)})")
     if model.rig not in spec.rigs:
         raise InputError(source, name, f"does not apply to {model.rig} (applies to {', '.join(spec.rigs)})")
-    m.effects[name] = Effect(params=effect_params(model.rig, name, rig_config_for(model, source)))
+    if form is not None and form == spec.default_form:
+        form = None
+    if form is not None and form not in spec.forms:
+        have = ", ".join(f for f in spec.form_names() if f) or "only its default form"
+        raise InputError(source, f"{name} --form", f"unknown form {form!r} (has {have})")
+    m.effects[name] = Effect(form=form, params=effect_params(model.rig, name, rig_config_for(model, source), form))
     return m
 
 
@@ -356,5 +393,6 @@ def remove_effect(model: Model, name: str, source: str = "model remove") -> Mode
 
 
 def drive_source(model: Model) -> Literal["command", "measured"]:
-    """belt-speed in a model means: drive it with the measured belt speed instead of the command."""
-    return "measured" if "belt-speed" in model.effects else "command"
+    """belt-speed in its default form means: drive the model with the measured belt speed, not the command."""
+    eff = model.effects.get("belt-speed")
+    return "measured" if eff is not None and eff.form is None and eff.path is None else "command"

@@ -3,6 +3,8 @@
 Numba caches compiled functions per source file and does not notice when a
 function's callee changes in another file, so the cache lives in a directory
 keyed by a hash of all compiled sources: any edit gets a fresh cache.
+
+Decision record: docs/decisions/0001-physics-in-one-place.md.
 """
 
 from __future__ import annotations

@@ -14,6 +14,8 @@ Dimensional form of eq. (1) per mass, chain wall-k-m1-k-m2-k-m3 (free last mass)
 which is eq. (3) after the scaling (2): x = K X / F0, t = tau / sqrt(M/K), d = D / sqrt(K M).
 Static limit: f_s = f_s0 * static_factor(t_s, Delta) where t_s is the time stuck and
 Delta = d(friction needed)/dt while stuck (for one mass on a constant belt, K S: the paper's Delta).
+
+Decision record: docs/decisions/0011-fixed-step-rk4-smooth-laws.md.
 """
 
 from __future__ import annotations
@@ -24,7 +26,18 @@ from enum import IntEnum
 import numpy as np
 
 from .contact import AUX, N_AUX
-from .effects import TAIL, E, accel_sign_weight, drive_speed, env_rates, ramp_eval, static_factor, temperature_factor
+from .effects import (
+    TAIL,
+    E,
+    accel_sign_weight,
+    aging_log,
+    arrhenius_factor,
+    drive_speed,
+    env_rates,
+    ramp_eval,
+    static_factor,
+    temperature_factor,
+)
 from .friction import f_pwl_piece
 from .jit import helper, kernel
 
@@ -121,7 +134,8 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
     vu = F0 / skm
     damp = e[E.D_BELT] * skm
     amp = e[E.AS_AMP]
-    tf = temperature_factor(s[tail + TAIL.TEMP], e[E.TEMP_COEF], e[E.TEMP_REF])
+    temp = s[tail + TAIL.TEMP]
+    tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
     a_d, f_k0, k_f, w_m, k_r = p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
     power = 0.0
     for i in range(n):
@@ -185,7 +199,8 @@ def _rk4_step(t, s, h, hs, p, e, rt, rv, out, wk, fric, region):
 
 @kernel
 def _static_limit(ts, q, p, e):
-    return p[P.F_S0] * static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
+    return p[P.F_S0] * (static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
+                        + aging_log(ts, e[E.ST_LOG_GAIN], e[E.ST_TAU]))
 
 
 @kernel

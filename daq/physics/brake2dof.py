@@ -22,6 +22,8 @@ from .effects import (
     TAIL,
     E,
     accel_sign_weight,
+    aging_log,
+    arrhenius_factor,
     drive_speed,
     env_rates,
     normal_load,
@@ -92,8 +94,10 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     n = normal_load(n_inst, p[P.N_NOM], e[E.NL_WEIGHT])
 
     sf = static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
+    sf += aging_log(ts, e[E.ST_LOG_GAIN], e[E.ST_TAU])
     mu = mu_brake(v_rel, p[P.mu0], p[P.gamma], p[P.alpha], p[P.beta] * sf)
-    mu = mu * temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) + e[E.VS_D] * v_rel
+    tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
+    mu = mu * tf + e[E.VS_D] * v_rel
     mu = mu * user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
     f = mu * n
 
@@ -104,13 +108,19 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
         w = accel_sign_weight(sg, (g_block - f * (1.0 + amp)) * inv_m, (g_block - f * (1.0 - amp)) * inv_m, dvb)
         f = f * (1.0 + amp * w)
         mu = mu * (1.0 + amp * w)
+    amp_b = e[E.AS_BODY_AMP]
+    if amp_b != 0.0:  # the body form: the branch follows the block's own acceleration (Filippov where neither holds)
+        w = accel_sign_weight(1.0, (g_block - f * (1.0 + amp_b)) * inv_m, (g_block - f * (1.0 - amp_b)) * inv_m, 0.0)
+        f = f * (1.0 + amp_b * w)
+        mu = mu * (1.0 + amp_b * w)
     ax = (g_block - f) * inv_m
 
     q_pivot = e[E.BF_TORQUE] * smooth_sign(y2 * inv_r, e[E.BF_EPS])  # Q of eq. (5b)
     ay = (-c1 * z2 - c2 * y2 - k2 * (x1 + y1) - k3 * d3 - grav - q_pivot * inv_r) * p[P.R2_J]
 
     load_rate = (k1 + k2) * x2 + k2 * y2  # rate of the spring load the contact must hold
-    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, e[E.ST_GAIN], e[E.FR_GAIN], e[E.V_STICK],
+    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, abs(e[E.ST_GAIN]) + abs(e[E.ST_LOG_GAIN]), e[E.FR_GAIN],
+                                    e[E.V_STICK],
                                     e[E.FR_TAU], e[E.ST_RESET])
     d_temp, d_lag, d_pos = env_rates(f * v_rel, v_cmd, vb, t, temp, v_lag, e[E.T_AMB], e[E.TH_DRIFT],
                                      e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])

@@ -23,6 +23,8 @@ from .effects import (
     TAIL,
     E,
     accel_sign_weight,
+    aging_log,
+    arrhenius_factor,
     drive_speed,
     env_rates,
     normal_load,
@@ -78,8 +80,10 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     spring = k * Rs * math.sin(phi)  # S, what strain gauge A reads
 
     sf = static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
+    sf += aging_log(ts, e[E.ST_LOG_GAIN], e[E.ST_TAU])
     mu = mu_drum(v_rel, p[P.A], p[P.B], p[P.C], p[P.E0], p[P.EPS], sf)
-    mu = mu * temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) + e[E.VS_D] * v_rel
+    tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
+    mu = mu * tf + e[E.VS_D] * v_rel
     mu = mu * user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
     f = mu * n
 
@@ -93,10 +97,18 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
         wsel = accel_sign_weight(sg, a_plus, a_minus, dvd)
         f = f * (1.0 + amp * wsel)
         mu = mu * (1.0 + amp * wsel)
+    amp_b = e[E.AS_BODY_AMP]
+    if amp_b != 0.0:  # the body form: the branch follows the pendulum's own acceleration
+        a_plus = R * (torque - f * (1.0 + amp_b) * R) / I0
+        a_minus = R * (torque - f * (1.0 - amp_b) * R) / I0
+        wsel = accel_sign_weight(1.0, a_plus, a_minus, 0.0)
+        f = f * (1.0 + amp_b * wsel)
+        mu = mu * (1.0 + amp_b * wsel)
     acc = (torque - f * R) / I0
 
     load_rate = k * Rs * Rs * math.cos(2.0 * phi) * w / R  # d/dt of spring torque / R
-    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, e[E.ST_GAIN], e[E.FR_GAIN], e[E.V_STICK],
+    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, abs(e[E.ST_GAIN]) + abs(e[E.ST_LOG_GAIN]), e[E.FR_GAIN],
+                                    e[E.V_STICK],
                                     e[E.FR_TAU], e[E.ST_RESET])
     d_temp, d_lag, d_pos = env_rates(f * v_rel, v_cmd, vd, t, temp, v_lag, e[E.T_AMB], e[E.TH_DRIFT],
                                      e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])

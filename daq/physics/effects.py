@@ -7,6 +7,8 @@ that vector are named by :class:`E`; each rig's equations read the slots that
 apply to it. Stateful effects (stick time, force rate, temperature, belt lag)
 carry their state in the common *contact tail* of every rig's state vector,
 see :data:`TAIL`.
+
+Decision record: docs/decisions/0001-physics-in-one-place.md.
 """
 
 from __future__ import annotations
@@ -55,6 +57,10 @@ class E(IntEnum):
     USER1 = 28
     USER2 = 29
     USER3 = 30
+    # the catalog's other forms of its phenomena (see EffectSpec.forms)
+    ST_LOG_GAIN = 31  # stick-time, Dieterich's logarithmic aging: b in 1 + b ln(1 + t_s/tau) [-]
+    AS_BODY_AMP = 32  # accel-sign keyed to the body's acceleration: mu x (1 + amp) while it accelerates [-]
+    TEMP_ARR = 33  # temperature, Arrhenius-like: mu x exp(theta (1/T - 1/T_ref)), T in kelvin; theta [K]
 
 
 N_E = len(E)
@@ -91,17 +97,49 @@ class ParamSpec(BaseModel):
     doc: str
 
 
+class FormSpec(BaseModel):
+    """Another published form of an effect's phenomenon: its own parameters (and slots), its own neutral."""
+
+    model_config = ConfigDict(frozen=True)
+    meaning: str
+    params: dict[str, tuple[ParamSpec, ...]]  # rig id (or "*") -> the keys that rig uses
+
+
 class EffectSpec(BaseModel):
+    """An effect is a phenomenon; where the literature writes it in more than one form, ``forms`` holds
+    the others. ``params`` is the default form (``default_form``). Every form vanishes at its neutral
+    values, so a model with the effect at neutral is exactly the model without it, whatever the form.
+    """
+
     model_config = ConfigDict(frozen=True)
     name: str
     meaning: str
     seed: str
     rigs: tuple[str, ...]
-    params: dict[str, tuple[ParamSpec, ...]]  # rig id -> the keys that rig uses
+    params: dict[str, tuple[ParamSpec, ...]]  # rig id -> the keys that rig uses (the default form)
     stateful: bool = False
+    default_form: str = ""
+    forms: dict[str, FormSpec] = {}
 
-    def params_for(self, rig: str) -> tuple[ParamSpec, ...]:
-        return self.params.get(rig, self.params.get("*", ()))
+    def form_names(self) -> list[str]:
+        """Every form, the default first ("" when the effect has only one form)."""
+        return [self.default_form, *self.forms]
+
+    def form_meaning(self, form: str | None) -> str:
+        if not form or form == self.default_form:
+            return self.meaning
+        return self.forms[form].meaning
+
+    def form_applies(self, rig: str, form: str | None) -> bool:
+        """Whether a form exists on a rig (a form with parameters elsewhere but none here does not)."""
+        if rig not in self.rigs:
+            return False
+        table = self.params if not form or form == self.default_form else self.forms[form].params
+        return rig in table or "*" in table
+
+    def params_for(self, rig: str, form: str | None = None) -> tuple[ParamSpec, ...]:
+        table = self.params if not form or form == self.default_form else self.forms[form].params
+        return table.get(rig, table.get("*", ()))
 
 
 def _p(key: str, slot: E, unit: str, neutral: float, lo: float, hi: float, doc: str) -> ParamSpec:
@@ -150,6 +188,13 @@ CATALOG: dict[str, EffectSpec] = {
             rigs=ALL_RIGS,
             params={"*": (_p("amp", E.AS_AMP, "-", 0.0, -0.5, 0.5,
                              "mu x (1+amp) while |v_rel| grows, mu x (1-amp) while it shrinks"),)},
+            default_form="relative",
+            forms={"body": FormSpec(
+                meaning="kinetic friction differs while the body accelerates and while it decelerates "
+                        "(paper 000's wording: keyed to the body's acceleration, not the sliding one)",
+                params={rig: (_p("amp", E.AS_BODY_AMP, "-", 0.0, -0.5, 0.5,
+                                 "mu x (1+amp) while the body accelerates along the drive, x (1-amp) against"),)
+                        for rig in ("brake-2dof", "drum-pendulum")})},  # belt-ndof's law has its own branches
         ),
         EffectSpec(
             name="stick-time",
@@ -161,6 +206,13 @@ CATALOG: dict[str, EffectSpec] = {
                 _p("gain", E.ST_GAIN, "-", 0.0, 0.0, 2.0, "relative peak increase after long adhesion"),
                 _p("tau", E.ST_TAU, "s", 1.0, 0.01, 100.0, "adhesion time constant"),
             )},
+            default_form="saturating",
+            forms={"log": FormSpec(
+                meaning="static (peak) friction grows with the logarithm of adhesion time (Dieterich)",
+                params={"*": (
+                    _p("gain", E.ST_LOG_GAIN, "-", 0.0, 0.0, 2.0, "b in 1 + b ln(1 + t_s/tau)"),
+                    _p("tau", E.ST_TAU, "s", 1.0, 0.001, 100.0, "cut-off time of the aging law"),
+                )})},
         ),
         EffectSpec(
             name="force-rate",
@@ -192,6 +244,14 @@ CATALOG: dict[str, EffectSpec] = {
                 _p("coef", E.TEMP_COEF, "1/K", 0.0, -0.1, 0.1, "relative change of mu per kelvin"),
                 _p("ref", E.TEMP_REF, "degC", 20.0, -50.0, 300.0, "temperature at which mu is nominal"),
             )},
+            default_form="linear",
+            forms={"arrhenius": FormSpec(
+                meaning="friction coefficient varies with contact temperature as exp(theta (1/T - 1/T_ref))",
+                params={"*": (
+                    _p("theta", E.TEMP_ARR, "K", 0.0, -20000.0, 20000.0,
+                       "activation temperature E/R of mu x exp(theta (1/T - 1/T_ref)), T in kelvin"),
+                    _p("ref", E.TEMP_REF, "degC", 20.0, -50.0, 300.0, "temperature at which mu is nominal"),
+                )})},
         ),
         EffectSpec(
             name="belt-speed",
@@ -199,12 +259,16 @@ CATALOG: dict[str, EffectSpec] = {
             seed="001",
             rigs=ALL_RIGS,
             stateful=True,
-            params={"*": (
-                _p("tau", E.VB_TAU, "s", 0.0, 0.0, 5.0, "first-order lag of the drive"),
-                _p("ripple", E.VB_RIPPLE, "-", 0.0, 0.0, 0.5, "relative speed ripple"),
-                _p("wavelength", E.VB_WAVELEN, "m", 1.0, 1e-3, 100.0,
-                   "ripple period in belt travel (drum: in drum angle, rad)"),
-            )},
+            params={"*": ()},
+            default_form="measured",
+            forms={"lag-ripple": FormSpec(
+                meaning="the belt follows the command through a first-order lag and a ripple periodic in travel",
+                params={"*": (
+                    _p("tau", E.VB_TAU, "s", 0.0, 0.0, 5.0, "first-order lag of the drive"),
+                    _p("ripple", E.VB_RIPPLE, "-", 0.0, 0.0, 0.5, "relative speed ripple"),
+                    _p("wavelength", E.VB_WAVELEN, "m", 1.0, 1e-3, 100.0,
+                       "ripple period in belt travel (drum: in drum angle, rad)"),
+                )})},
         ),
         EffectSpec(
             name="velocity-strengthening",
@@ -241,9 +305,10 @@ def neutral_vector() -> np.ndarray:
     e = np.zeros(N_E)
     e[E.BF_EPS] = BEARING_SGN_EPS
     for spec in CATALOG.values():
-        for plist in spec.params.values():
-            for ps in plist:
-                e[ps.slot] = ps.neutral
+        for table in [spec.params, *(f.params for f in spec.forms.values())]:
+            for plist in table.values():
+                for ps in plist:
+                    e[ps.slot] = ps.neutral
     return e
 
 
@@ -304,9 +369,25 @@ def static_factor(ts: float, q: float, st_gain: float, st_tau: float, fr_gain: f
 
 
 @helper
+def aging_log(ts: float, gain: float, tau: float) -> float:
+    """stick-time, logarithmic form (Dieterich): the term gain ln(1 + t_s/tau) added to the static factor."""
+    if gain == 0.0:
+        return 0.0
+    return gain * math.log1p(max(ts, 0.0) / tau)
+
+
+@helper
 def temperature_factor(temp: float, coef: float, ref: float) -> float:
     """temperature: linear sensitivity of the friction coefficient around a reference."""
     return 1.0 + coef * (temp - ref)
+
+
+@helper
+def arrhenius_factor(temp: float, theta: float, ref: float) -> float:
+    """temperature, Arrhenius-like form: exp(theta (1/T - 1/T_ref)) with T = temp + 273.15 K."""
+    if theta == 0.0:
+        return 1.0
+    return math.exp(theta * (1.0 / (temp + 273.15) - 1.0 / (ref + 273.15)))
 
 
 @kernel

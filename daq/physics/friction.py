@@ -3,6 +3,8 @@
 Written with ``np.*`` and without branches so that one definition serves the
 compiled rig equations (scalars) and the analysis code (arrays). Every law is
 odd in the relative velocity; the tests check it.
+
+Decision record: docs/decisions/0011-fixed-step-rk4-smooth-laws.md.
 """
 
 from __future__ import annotations

@@ -11,6 +11,8 @@ dispatch between rigs, or a function argument, costs 3x in numba's reference
 counting). A closure would do that but numba cannot cache closures; so each rig
 gets a copy of one template function with its rhs bound as a global and its own
 name, which numba caches on disk like any module-level function.
+
+Decision record: docs/decisions/0011-fixed-step-rk4-smooth-laws.md.
 """
 
 from __future__ import annotations

@@ -2,6 +2,8 @@
 
 One adapter per rig maps a validated config and an effect vector to the compiled
 equations, integrates a chunk, and says what each interchange channel would read.
+
+Decision record: docs/decisions/0001-physics-in-one-place.md.
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@ blocking, so a slow subscriber loses data but never stalls the publisher. Every
 block carries a per-stream sequence number, so each subscriber counts exactly
 how many blocks it lost (and reports it as an event), and a recorder that must
 lose nothing gets a high-water mark deep enough for its write latency.
+
+Decision record: docs/decisions/0007-zeromq-bus-pydantic-headers-raw-buffers.md.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Figures of paper 000's identification (its Figs. 8-11 and 19), from the analyses' results.
 
-Why a module of its own: the numerical core (paper000.py) stays free of plotting; each
-figure reads only the pydantic result (and, for the phase plane, the smoothed
-trajectory the analysis returns), so a figure can be redrawn from the JSON.
+Why a module of its own: the numerical core (the other modules of this package) stays
+free of plotting; each figure reads only the pydantic result (and, for the phase plane,
+the smoothed trajectory the analysis returns), so a figure can be redrawn from the JSON.
+Every PNG goes through daq.io.png.save_png at 110 dpi.
 """
 
 from __future__ import annotations
@@ -11,20 +12,19 @@ from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
+matplotlib.use("Agg")  # before pyplot: figures are files, no display needed
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm, Normalize  # noqa: E402
 
-from daq.io.interchange import atomic_path  # noqa: E402
+from daq.io.png import save_png  # noqa: E402
 
-from .paper000 import LAW, BeltLawResult, PoincareAnalysis, pwl_law, static_law  # noqa: E402
+from .belt_law import BeltLawResult  # noqa: E402
+from .equation_error import LAW, pwl_law  # noqa: E402
+from .poincare import PoincareAnalysis  # noqa: E402
+from .static_law import static_law  # noqa: E402
 
-
-def _save(fig, path: str | Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+DPI = 110
 
 
 def _law(res: BeltLawResult) -> np.ndarray:
@@ -106,7 +106,25 @@ def belt_law_figure(res: BeltLawResult, path: str | Path) -> None:
     a = res.law
     fig.suptitle("paper 000 friction law: " + ", ".join(f"{k} = {a[k].value:.4g} ± {a[k].std:.2g}" for k in LAW),
                  fontsize=10)
-    _save(fig, path)
+    save_png(fig, path, dpi=DPI)
+
+
+def _static_panel(fig, ax, x, fs, f_corr, sd, c, cmap: str, norm, corr_label: str, cbar_label: str, law,
+                  law_label: str, xlabel: str, ylabel: str, title: str) -> None:
+    """One panel of Fig. 11: raw levels faint, corrected levels coloured by the other variable, the law."""
+    ax.plot(x, fs, "o", ms=4, color="0.8", label="raw break-away levels", zorder=1)
+    sc = ax.scatter(x, f_corr, c=c, cmap=cmap, norm=norm, s=22, zorder=3, label=corr_label)
+    ax.errorbar(x, f_corr, yerr=sd, fmt="none", ecolor="0.4", lw=0.6, zorder=2)
+    fig.colorbar(sc, ax=ax, label=cbar_label)
+    if law is not None:
+        xx = np.geomspace(x.min() * 0.7, x.max() * 1.4, 200)
+        ax.plot(xx, law(xx), "k-", lw=1.2, label=law_label)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
 
 
 def belt_static_figure(res: BeltLawResult, path: str | Path) -> None:
@@ -121,7 +139,7 @@ def belt_static_figure(res: BeltLawResult, path: str | Path) -> None:
     if not eps:
         for ax in axes:
             ax.text(0.5, 0.5, "no complete stick episode", ha="center", transform=ax.transAxes)
-        _save(fig, path)
+        save_png(fig, path, dpi=DPI)
         return
     ts = np.array([e.t_s_s for e in eps])
     dl = np.maximum(np.abs([e.delta_N_per_s for e in eps]), 1e-3)
@@ -139,43 +157,21 @@ def belt_static_figure(res: BeltLawResult, path: str | Path) -> None:
         f_t = f_d = fs
     dnorm = LogNorm(dl.min(), max(dl.max(), dl.min() * 1.01))
     tnorm = LogNorm(ts.min(), max(ts.max(), ts.min() * 1.01))
-    ax = axes[0]
-    ax.plot(ts, fs, "o", ms=4, color="0.8", label="raw break-away levels", zorder=1)
-    sc = ax.scatter(ts, f_t, c=dl, cmap="plasma", norm=dnorm, s=22, zorder=3,
-                    label=f"corrected to Delta = {d_ref:.3g} N/s by the fitted law")
-    ax.errorbar(ts, f_t, yerr=sd, fmt="none", ecolor="0.4", lw=0.6, zorder=2)
-    fig.colorbar(sc, ax=ax, label="force rate Delta at break-away [N/s]")
-    if st:
-        tt = np.geomspace(ts.min() * 0.7, ts.max() * 1.4, 200)
-        ax.plot(tt, static_law(tt, np.full_like(tt, d_ref), *th, q0), "k-", lw=1.2,
-                label=f"fitted f_s(t_s, Delta = {d_ref:.3g} N/s)")
-    ax.legend(fontsize=8, loc="lower right")
-    ax.set_xscale("log")
-    ax.set_xlabel("stick time t_s [s]")
-    ax.set_ylabel("static friction (break-away level) f_s [-]  (unit F0)")
-    ax.set_title("f_s against adhesion time (cf. Fig. 11)", fontsize=10)
-    ax.grid(alpha=0.3, which="both")
-    ax = axes[1]
-    ax.plot(dl, fs, "o", ms=4, color="0.8", label="raw break-away levels", zorder=1)
-    sc = ax.scatter(dl, f_d, c=ts, cmap="viridis", norm=tnorm, s=22, zorder=3,
-                    label=f"corrected to t_s = {t_ref:.3g} s by the fitted law")
-    ax.errorbar(dl, f_d, yerr=sd, fmt="none", ecolor="0.4", lw=0.6, zorder=2)
-    fig.colorbar(sc, ax=ax, label="stick time t_s [s]")
-    if st:
-        dd = np.geomspace(dl.min() * 0.7, dl.max() * 1.4, 200)
-        ax.plot(dd, static_law(np.full_like(dd, t_ref), dd, *th, q0), "k-", lw=1.2,
-                label=f"fitted f_s(t_s = {t_ref:.3g} s, Delta)")
-    ax.legend(fontsize=8, loc="lower right")
-    ax.set_xscale("log")
-    ax.set_xlabel("force rate Delta at break-away [N/s]")
-    ax.set_ylabel("static friction f_s [-]")
-    ax.set_title("f_s against force rate (cf. Fig. 11)", fontsize=10)
-    ax.grid(alpha=0.3, which="both")
+    _static_panel(fig, axes[0], ts, fs, f_t, sd, dl, "plasma", dnorm,
+                  f"corrected to Delta = {d_ref:.3g} N/s by the fitted law", "force rate Delta at break-away [N/s]",
+                  (lambda tt: static_law(tt, np.full_like(tt, d_ref), *th, q0)) if st else None,
+                  f"fitted f_s(t_s, Delta = {d_ref:.3g} N/s)", "stick time t_s [s]",
+                  "static friction (break-away level) f_s [-]  (unit F0)", "f_s against adhesion time (cf. Fig. 11)")
+    _static_panel(fig, axes[1], dl, fs, f_d, sd, ts, "viridis", tnorm,
+                  f"corrected to t_s = {t_ref:.3g} s by the fitted law", "stick time t_s [s]",
+                  (lambda dd: static_law(np.full_like(dd, t_ref), dd, *th, q0)) if st else None,
+                  f"fitted f_s(t_s = {t_ref:.3g} s, Delta)", "force rate Delta at break-away [N/s]",
+                  "static friction f_s [-]", "f_s against force rate (cf. Fig. 11)")
     if st:
         fig.suptitle("f_s = f_s0 (1 + g_t (1 - exp(-t_s/tau)) + g_d ln(1 + Delta/q0)), q0 = "
                      f"{q0:g} N/s fixed; {len(eps)} break-aways, rms {res.static_rms:.2g}\n" + ", ".join(
                          f"{k} = {v.value:.4g} ± {v.std:.2g}" for k, v in st.items()), fontsize=10)
-    _save(fig, path)
+    save_png(fig, path, dpi=DPI)
 
 
 def poincare_figure(a: PoincareAnalysis, path: str | Path) -> None:
@@ -247,4 +243,4 @@ def poincare_figure(a: PoincareAnalysis, path: str | Path) -> None:
     fig.suptitle(f"{Path(r.path).name}: {n} mass(es), s = {r.belt_speed_s:.3f}: {r.classification}{per} "
                  f"({r.points_steady} steady section points, {r.distinct_points} distinct at tolerance "
                  f"{r.tolerance:.3g})", fontsize=11)
-    _save(fig, path)
+    save_png(fig, path, dpi=DPI)

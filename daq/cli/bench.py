@@ -1,0 +1,30 @@
+"""``daq bench NAME``: run a benchmark and print its figures beside the baseline measured in the same run.
+
+The registry (daq/bench/__init__.py) imports a benchmark's module only when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from daq.bench import BENCHES, run_bench
+from daq.errors import InputError
+from daq.io.jsonout import print_json
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name not in BENCHES:
+        raise InputError("bench", args.name, f"unknown benchmark (have: {', '.join(BENCHES)})")
+    result, report = run_bench(args.name)
+    if args.json:
+        print_json(result)
+    else:
+        print(report)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="run a benchmark against its same-run baseline")
+    bench.add_argument("name")
+    bench.add_argument("--json", action="store_true")
+    bench.set_defaults(func=cmd_bench)
