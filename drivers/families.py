@@ -9,6 +9,8 @@ class builds itself from them with ``from_settings(name, settings, rig)``.
 Adding a family: its settings model in daq/config.py (and in its ``Instrument`` union), its
 driver module and one line in ``FAMILIES`` here; its simulator module and one line in
 sim_backends/families.py. Drivers never learn about simulators.
+
+Decision record: docs/decisions/0016-instrument-family-registry.md.
 """
 
 from __future__ import annotations

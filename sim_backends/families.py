@@ -6,6 +6,8 @@ settings (the rig config's [instruments] entry, endpoint applied) with
 ``from_settings(rig, name, settings, port=..., clock=..., seed=...)``; ``port`` is the
 instrument's pty for serial families and None for CAN (sim_backends/hardware.py makes the
 transports). As in drivers/families.py, a module is imported only when a bench needs it.
+
+Decision record: docs/decisions/0016-instrument-family-registry.md.
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ from refsim import make as refsim  # noqa: E402
 
 from daq.cli.main import main as daq  # noqa: E402
 
-RAMPS = {"A": (0.17, 45.0, 30.0), "B": (0.25, 60.0, 40.0)}  # V0 [m/s], Tmax [s], record length [s]
+RAMPS = {"A": (0.17, 45.0, 40.0), "B": (0.25, 60.0, 52.0)}  # V0 [m/s], Tmax [s], record length [s]: to near belt stop
 
 
 @dataclass(frozen=True)

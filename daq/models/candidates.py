@@ -7,6 +7,8 @@ config shifts every stick-slip cycle, and some catalog effect would partly mimic
 A candidate applied to a model gives the extended model at its *neutral* point: the effect's
 strength at its neutral value, or the mechanics parameter at the config's value. The extended
 model is then exactly the model it extends, so its fit can start there and only improve.
+
+Decision record: docs/decisions/0015-diagnosis-forward-selection.md.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from daq.io.png import save_png  # noqa: E402
 from daq.physics.contact import AUX  # noqa: E402
 from daq.signals import paper_spectrogram, sg  # noqa: E402
 
+from .diagnose import MIN_STEP  # noqa: E402
 from .session import Fitted, Session  # noqa: E402
 
 
@@ -137,17 +138,17 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     fig = plt.figure(figsize=(15, 5), constrained_layout=True)
     gs = fig.add_gridspec(1, 3)
     ax = fig.add_subplot(gs[0, 0])
-    added = {s.label for s in diag.sequence} if diag.found else set()
+    added = {c.label for step in diag.sequence for c in step.cands} if diag.found else set()
     names = [c.label for c in diag.candidates][::-1]
     red = [c.reduction for c in diag.candidates][::-1]
     ax.barh(names, red, color=["C2" if n in added else "C0" for n in names])
     if diag.sequence and diag.final is not None:
         total = (diag.base.rms(primary) - diag.final.rms(primary)) / max(diag.base.rms(primary) - diag.floor, 1e-300)
         ax.axvline(total, color="C2", ls="--", label=f"added together: {total:.0%}")
-    ax.axvline(0.5, color="k", ls=":", label="needed to count")
+    ax.axvline(MIN_STEP, color="k", ls=":", label="a step needs (of the excess left)")
     ax.set_xlabel("share of excess error removed on held-out windows (alone)")
     ax.set_xlim(min(-0.2, min(red) if red else 0), 1.1)
-    ax.set_title("which effect is missing? (fitted candidates of step 1)")
+    ax.set_title("which effect is missing? (step 1's fitted candidates; green: added)")
     ax.legend(fontsize=8)
     # evidence: the held-out window where the base model is worst, base vs best candidate
     ax = fig.add_subplot(gs[0, 1:])

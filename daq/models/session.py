@@ -19,11 +19,11 @@ from daq.config import RigConfig
 from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.io.loading import load_data
-from daq.physics.effects import CATALOG
+from daq.physics.effects import CATALOG, TAIL
 
 from .build import Builder
 from .data import Measured, RigData, rig_data
-from .shooting import Problem, ShootingFit, Windows, make_windows
+from .shooting import Problem, ShootingFit, Windows, make_windows, window_weights
 from .spec import STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
 
 MIN_CONTINUATION = 8  # samples
@@ -93,7 +93,8 @@ class Session:
     def problem(self, model: Model) -> Problem:
         return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model))
 
-    def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 40) -> Fitted:
+    def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 40,
+            cold: dict[str, float] | None = None) -> Fitted:
         """Fit the model's free parameters on the fit windows, then score it on the held-out ones.
 
         Starts (each probed for PROBE_ITER iterations on the windows' first halves; the best goes on):
@@ -103,9 +104,28 @@ class Session:
         symmetric term, would stall there); and, when refining a fitted model (``warm``), its fitted values
         with the new parameters at the file's values, and at the non-zero starts. Whatever wins, the result
         is never worse on the fit windows than the model it extends: a fit that ends above ``warm``'s cost
-        is redone from the nested start. A free parameter that never left its start value (and is not at
-        a bound) marks a stalled fit: it is restarted from moved starts and the better one kept.
+        is redone from the nested start. ``cold`` (values of the model as it was written, before any fit)
+        adds the start a user's `model add` + `compare` makes: the fitted base can sit in a compromise the
+        new effect cannot leave (seen: velocity weakening fitted away to gamma = 0 to mimic a hidden
+        velocity-strengthening term; from there D never reached its value, from the file's gamma it did).
+        A free parameter that never left its start value (and is not at a bound) marks a stalled fit: it is
+        restarted from moved starts and the better one kept.
         """
+        if warm is None:
+            held = neutral_strengths(model)
+            if held:
+                # effects added at their neutral value (`model add`): fit the model without them first (the
+                # same strengths held at neutral), then extend that fit, as diagnose does; from the file's
+                # values alone the added strength can fall into a poor basin (seen: accel-sign amp 0 -> a fit
+                # at 70 um where the nested one reaches 10 um)
+                base_model = model.model_copy(deep=True)
+                for k in held:  # the whole effect held: its other parameters mean nothing at neutral strength
+                    prefix = k.rsplit(".", 1)[0] + "."
+                    for name, par in base_model.params().items():
+                        if name.startswith(prefix):
+                            par.free = False
+                warm = self.fit(base_model, max_iter=max_iter)
+                cold = cold or dict(self.problem(model).builder.base_values)
         pr = self.problem(model)
         params = model.params()
         free = model.free_names()
@@ -113,9 +133,11 @@ class Session:
                       params[n].hi if params[n].hi is not None else np.inf) for n in free}
         file_values = dict(pr.builder.base_values)
         moved = strength_starts(model, file_values)
-        starts: list[tuple[dict[str, float], np.ndarray | None]] = [(file_values, None)]
-        if moved:
-            starts.append(({**file_values, **moved}, None))
+        starts: list[tuple[dict[str, float], np.ndarray | None]] = []
+        if warm is None:  # (with a warm fit the file's values are the ``cold`` start below: the same starts
+            starts.append((file_values, None))  # as diagnose's candidate fits, so both paths end alike)
+            if moved:
+                starts.append(({**file_values, **moved}, None))
         nested = None
         if warm is not None:
             new = self._new_keys(warm.model, model)
@@ -126,6 +148,9 @@ class Session:
             moved_new = {k: v for k, v in moved.items() if k in new}
             if moved_new:
                 starts.append(({**values, **moved_new}, warm.fit.start_values))
+            if cold:
+                starts.append(({**values, **{k: v for k, v in cold.items() if k in values and k not in new},
+                                **moved_new}, None))
         # the same values twice (a model file that holds the fitted values of the model it extends): keep the
         # start with the warm start values, the later one
         unique: dict[tuple, tuple] = {}
@@ -133,7 +158,9 @@ class Session:
             unique[tuple(sorted(values.items()))] = (values, vel)
         starts = list(unique.values())
         fw, hw = self.win.select(False), self.win.select(True)
-        res = self._fit_from(pr, starts, free, bounds, fw, max_iter)
+        if warm is not None and warm.problem.weights is not None:
+            pr.weights = warm.problem.weights.copy()  # the same windows count as in the fit it extends
+        res = self._fit_from(pr, starts, free, bounds, fw, max_iter, reweight=warm is None)
         if nested is not None and res.cost > warm.fit.cost * (1.0 + 1e-9):
             again = self._fit_from(pr, [nested], free, bounds, fw, max_iter)
             res = again if again.cost < res.cost else res
@@ -162,9 +189,11 @@ class Session:
                       pr.window_errors(res.values, fw, res.start_values))
 
     def _fit_from(self, pr: Problem, starts: list, free: list[str], bounds: dict, fw: np.ndarray,
-                  max_iter: int) -> ShootingFit:
+                  max_iter: int, reweight: bool = False) -> ShootingFit:
         """First on the windows' first halves (less nonlinear: a shifted break-away costs less; cheaper),
-        each start PROBE_ITER iterations and only the best goes on, then on the whole windows."""
+        each start PROBE_ITER iterations and only the best goes on, then on the whole windows. With
+        ``reweight`` the windows' weights (window_weights) are set from the half-window result and, if
+        they changed, once more from the full fit's, which then continues."""
         half = max(MIN_CONTINUATION, self.win.length // 2)
         probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
         best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half)
@@ -172,7 +201,15 @@ class Session:
         if probe < max_iter // 2:
             best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
                           max_iter=max_iter // 2 - probe, length=half)
-        return pr.fit(best.values, free, bounds, fw, start_values=best.start_values, max_iter=max_iter)
+        if reweight:
+            pr.weights = window_weights(pr.window_costs(best.values, fw, best.start_values), fw, self.win.starts.size)
+        res = pr.fit(best.values, free, bounds, fw, start_values=best.start_values, max_iter=max_iter)
+        if reweight:
+            w = window_weights(pr.window_costs(res.values, fw, res.start_values), fw, self.win.starts.size)
+            if np.any(np.abs(np.log(w[fw] / pr.weights[fw])) > math.log(2.0)):
+                pr.weights = w
+                res = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=max_iter // 2)
+        return res
 
     @staticmethod
     def _stalled(res: ShootingFit, starts: list, free: list[str], bounds: dict) -> list[str]:
@@ -194,7 +231,9 @@ class Session:
 
     @staticmethod
     def _new_keys(old: Model, new: Model) -> set[str]:
-        return set(new.params()) - set(old.params())
+        """Parameters free in ``new`` that ``old`` does not have, or holds fixed."""
+        was_free = set(old.free_names())
+        return {k for k in new.free_names() if k not in was_free}
 
     # ------------------------------------------------------------------ forward simulation and noise floor
 
@@ -240,6 +279,13 @@ class Session:
             smooth_raw = self.m.drive_measured[idx] / scale  # the drive in the channel's own unit
             noise = raw - smooth_raw
             ch[dc] = smooth_raw + np.roll(noise, int(rng.integers(noise.size // 4, 3 * noise.size // 4 + 1)))
+        if "temp" in ch and self.m.temp is not None:
+            # the forward run heats the contact by its own thermal model, which a real contact need not follow:
+            # the synthetic thermocouple reads the run's temperature (plus the real one's noise, shifted), so
+            # its windows start from the temperature their data were made with
+            sim = fitted.problem.sim(fitted.values)
+            noise = np.asarray(self.rec.channels["temp"], dtype=float)[idx] - self.m.temp[idx]
+            ch["temp"] = states[:, sim.n_mech + TAIL.TEMP] + np.roll(noise, int(rng.integers(1, max(noise.size, 2))))
         syn = Recording(self.rec.rig, self.m.t[idx], ch, self.rec.units, {}, {})
         s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size)
         s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
@@ -252,6 +298,22 @@ class Session:
         wsum = self.weighted(ms)
         keep = wsum <= 25.0 * np.median(wsum)
         return {k: float(math.sqrt(np.mean(v[keep]))) for k, v in ms.items()}
+
+
+def neutral_strengths(model: Model) -> list[str]:
+    """Free catalog-effect strengths that sit at their neutral value: an effect just added by `model add`."""
+    out = []
+    params = model.params()
+    for name, eff in model.effects.items():
+        spec = CATALOG.get(name)
+        if spec is None or eff.path is not None:
+            continue
+        key = strength_key(model.rig, name, eff.form)
+        full = f"effects.{name}.{key}"
+        if key is not None and full in params and params[full].free and \
+                params[full].value == spec.params_for(model.rig, eff.form)[0].neutral:
+            out.append(full)
+    return out
 
 
 def strength_starts(model: Model, values: dict[str, float]) -> dict[str, float]:

@@ -24,6 +24,7 @@ from .effects import (
     accel_sign_weight,
     aging_log,
     arrhenius_factor,
+    body_accel_factor,
     drive_speed,
     env_rates,
     normal_load,
@@ -109,10 +110,10 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
         f = f * (1.0 + amp * w)
         mu = mu * (1.0 + amp * w)
     amp_b = e[E.AS_BODY_AMP]
-    if amp_b != 0.0:  # the body form: the branch follows the block's own acceleration (Filippov where neither holds)
-        w = accel_sign_weight(1.0, (g_block - f * (1.0 + amp_b)) * inv_m, (g_block - f * (1.0 - amp_b)) * inv_m, 0.0)
-        f = f * (1.0 + amp_b * w)
-        mu = mu * (1.0 + amp_b * w)
+    if amp_b != 0.0:  # the body form: a smooth switch on the block's own acceleration
+        fb = body_accel_factor(g_block, f, inv_m, amp_b, e[E.AS_BODY_A0])
+        f = f * fb
+        mu = mu * fb
     ax = (g_block - f) * inv_m
 
     q_pivot = e[E.BF_TORQUE] * smooth_sign(y2 * inv_r, e[E.BF_EPS])  # Q of eq. (5b)

@@ -25,6 +25,7 @@ from .effects import (
     accel_sign_weight,
     aging_log,
     arrhenius_factor,
+    body_accel_factor,
     drive_speed,
     env_rates,
     normal_load,
@@ -98,12 +99,10 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
         f = f * (1.0 + amp * wsel)
         mu = mu * (1.0 + amp * wsel)
     amp_b = e[E.AS_BODY_AMP]
-    if amp_b != 0.0:  # the body form: the branch follows the pendulum's own acceleration
-        a_plus = R * (torque - f * (1.0 + amp_b) * R) / I0
-        a_minus = R * (torque - f * (1.0 - amp_b) * R) / I0
-        wsel = accel_sign_weight(1.0, a_plus, a_minus, 0.0)
-        f = f * (1.0 + amp_b * wsel)
-        mu = mu * (1.0 + amp_b * wsel)
+    if amp_b != 0.0:  # the body form: a smooth switch on the pendulum's acceleration at the contact (R phi'')
+        fb = body_accel_factor(torque / R, f, R * R / I0, amp_b, e[E.AS_BODY_A0])
+        f = f * fb
+        mu = mu * fb
     acc = (torque - f * R) / I0
 
     load_rate = k * Rs * Rs * math.cos(2.0 * phi) * w / R  # d/dt of spring torque / R

@@ -61,6 +61,7 @@ class E(IntEnum):
     ST_LOG_GAIN = 31  # stick-time, Dieterich's logarithmic aging: b in 1 + b ln(1 + t_s/tau) [-]
     AS_BODY_AMP = 32  # accel-sign keyed to the body's acceleration: mu x (1 + amp) while it accelerates [-]
     TEMP_ARR = 33  # temperature, Arrhenius-like: mu x exp(theta (1/T - 1/T_ref)), T in kelvin; theta [K]
+    AS_BODY_A0 = 34  # accel-sign (body form): acceleration scale of its smooth switch tanh(a/a0) [m/s^2]
 
 
 N_E = len(E)
@@ -193,7 +194,9 @@ CATALOG: dict[str, EffectSpec] = {
                 meaning="kinetic friction differs while the body accelerates and while it decelerates "
                         "(paper 000's wording: keyed to the body's acceleration, not the sliding one)",
                 params={rig: (_p("amp", E.AS_BODY_AMP, "-", 0.0, -0.5, 0.5,
-                                 "mu x (1+amp) while the body accelerates along the drive, x (1-amp) against"),)
+                                 "mu x (1 + amp tanh(a/a0)): higher while the body accelerates along the drive"),
+                              _p("a0", E.AS_BODY_A0, "m/s^2", 1.0, 0.05, 50.0,
+                                 "acceleration scale of the switch (small: a sign; large: linear in a)"))
                         for rig in ("brake-2dof", "drum-pendulum")})},  # belt-ndof's law has its own branches
         ),
         EffectSpec(
@@ -455,6 +458,23 @@ def accel_sign_weight(sgn_v: float, acc_plus: float, acc_minus: float, drive_acc
         return 0.0
     # linear in w: g(w) = g_minus + (w + 1)/2 (g_plus - g_minus) = 0
     return -1.0 + 2.0 * g_minus / (g_minus - g_plus)
+
+
+@helper
+def body_accel_factor(g_other: float, f: float, inv_mass: float, amp: float, a0: float) -> float:
+    """accel-sign, body form: the factor 1 + amp tanh(a/a0) on the friction, with a the body's acceleration
+    that this very friction causes, a = (g_other - f (1 + amp tanh(a/a0))) inv_mass (an implicit equation:
+    four Newton steps from the acceleration without the effect; |amp| <= 0.5 keeps it monotone for the
+    loads and scales of these rigs). ``g_other`` is every other force on the body (in the units of f)."""
+    a = (g_other - f) * inv_mass
+    for _ in range(4):
+        th = math.tanh(a / a0)
+        h = a - (g_other - f * (1.0 + amp * th)) * inv_mass
+        dh = 1.0 + f * amp * (1.0 - th * th) / a0 * inv_mass
+        if dh < 0.1:
+            dh = 0.1
+        a -= h / dh
+    return 1.0 + amp * math.tanh(a / a0)
 
 
 @helper
