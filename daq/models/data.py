@@ -20,7 +20,7 @@ from daq.io.interchange import Recording
 from daq.io.loading import MODEL_CHANNELS
 from daq.physics import brake2dof, drum
 from daq.physics.contact import AUX
-from daq.physics.effects import TAIL, stick_rates
+from daq.physics.effects import DC_MIN, TAIL, E, stick_rates
 from daq.physics.jit import kernel
 from daq.signals import noise_sigma, sg
 from daq.sim.rigs import SimRig
@@ -45,6 +45,7 @@ class Measured:
     command_source: str
     temp: np.ndarray | None
     context: dict[str, np.ndarray] = field(default_factory=dict)  # quantities residuals may correlate with
+    aging: dict[float, np.ndarray] = field(default_factory=dict)  # Dieterich's state along the data, per Dc
     v_rel: np.ndarray | None = None  # data-derived relative sliding speed (for regimes)
     d_abs_v_rel: np.ndarray | None = None
 
@@ -164,6 +165,38 @@ def _stick_tail(v_rel, load_rate, dt, n_sub, v_stick, fr_tau, st_reset, ts_out, 
             q += h * d_q
 
 
+@kernel
+def _dieterich_tail(v_rel, dt, dc, out):
+    """Dieterich's aging law d theta/dt = 1 - |v| theta/Dc along the data, solved exactly per sample (v held)."""
+    th = 0.0
+    for i in range(v_rel.size):
+        out[i] = th
+        v = abs(v_rel[i])
+        k = v * dt / dc
+        if k < 1e-9:
+            th += dt
+        else:
+            ss = dc / v
+            th = ss + (th - ss) * math.exp(-k)
+
+
+def clock_at(sim: SimRig, m: Measured, i: int) -> float:
+    """The contact's clock at sample i for this model: the stick clock, or Dieterich's state where the model's
+    log-aging form asks for it (its Dc is a fitted parameter: the state is integrated along the data per Dc)."""
+    dc = float(sim.e[E.ST_DC])
+    if dc <= 0.0 or sim.e[E.ST_LOG_GAIN] == 0.0:
+        return float(m.context["stick_clock"][i])
+    dc = max(dc, DC_MIN)
+    th = m.aging.get(dc)
+    if th is None:
+        if len(m.aging) > 64:  # a fit visits many Dc; keep the cache small
+            m.aging.clear()
+        th = np.empty(m.n)
+        _dieterich_tail(np.ascontiguousarray(m.v_rel, dtype=float), 1.0 / m.rate, dc, th)
+        m.aging[dc] = th
+    return float(th[i])
+
+
 def stick_tail(v_rel: np.ndarray, load_rate: np.ndarray, rate: float, cfg: RigConfig) -> tuple[np.ndarray, np.ndarray]:
     c = cfg.contact
     n_sub = max(1, int(math.ceil((1.0 / rate) / min(2e-4, 0.2 * c.stick_reset_tau_s))))
@@ -215,7 +248,7 @@ class BrakeData(RigData):
         s = np.zeros(brake2dof.N_STATE)
         s[0], s[1], s[2], s[3] = c["x1_smooth"][i], c["x1_dot"][i], c["y1_smooth"][i], c["y1_dot"][i]
         n = brake2dof.N_MECH
-        s[n + TAIL.TS] = c["stick_clock"][i]
+        s[n + TAIL.TS] = clock_at(sim, m, i)
         s[n + TAIL.Q] = c["load_rate"][i]
         s[n + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
         s[n + TAIL.VLAG] = m.drive_measured[i]
@@ -274,7 +307,7 @@ class DrumData(RigData):
         s = np.zeros(drum.N_STATE)
         s[0], s[1] = c["phi_smooth"][i], c["w"][i]
         n = drum.N_MECH
-        s[n + TAIL.TS] = c["stick_clock"][i]
+        s[n + TAIL.TS] = clock_at(sim, m, i)
         s[n + TAIL.Q] = c["load_rate"][i]
         s[n + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
         s[n + TAIL.VLAG] = m.drive_measured[i]

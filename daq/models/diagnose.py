@@ -48,7 +48,9 @@ MIN_STEP_BASE = 0.05  # ...and by this share of the base model's excess, unless 
 CAP_MS = 25.0  # per-window mean-square errors are capped at this many times the base model's median
 MAX_STEPS = 3  # effects added at most in one diagnosis
 FIT_PHENOMENA = 3  # per step, the phenomena with the largest predicted gains get full fits...
-FORM_SHARE = 0.5  # ...each in every form predicted to reach this share of the phenomenon's best form
+FORM_SHARE = 0.0  # ...each in every form (the score test cannot choose between forms: they mirror each other:
+# accel-sign keyed to the body with -amp is nearly the relative form with +amp, yet the score test rated
+# them 20x apart on one recording, and the one rated lower was the better fit)
 PAIR_TOP = 3  # when no single passes (or the best leaves much): pairs among this many best singles...
 PAIR_BELOW = 0.8  # ...tried when the best passing single removes less than this share of the excess left...
 PAIR_MARGIN = 0.2  # ...and taken over it when its score is higher by this much

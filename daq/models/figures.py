@@ -85,8 +85,13 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax = fig.add_subplot(gs[1, 2])
     ms = np.sqrt(np.mean((sh_all.pred[primary][:, 1:] - sh_all.meas[primary][:, 1:]) ** 2, axis=1))
     tw = m.t[session.win.starts]
-    ax.plot(tw[~session.win.held_out], ms[~session.win.held_out], "o", ms=3, label="fit windows")
-    ax.plot(tw[session.win.held_out], ms[session.win.held_out], "s", ms=3, label="held-out windows")
+    fitw, heldw = session.win.select(False), session.win.select(True)
+    flagged = np.setdiff1d(np.arange(tw.size), np.concatenate([fitw, heldw]))
+    ax.plot(tw[fitw], ms[fitw], "o", ms=3, label="fit windows")
+    ax.plot(tw[heldw], ms[heldw], "s", ms=3, label="held-out windows (the error)")
+    if flagged.size:
+        ax.plot(tw[flagged], ms[flagged], "x", color="0.5", ms=5, label="flagged transient (not scored)")
+    ax.set_yscale("log")
     ax.axhline(result["noise_floor"], color="k", ls="--", label="noise floor")
     ax.set_xlabel("t [s]")
     ax.set_ylabel(f"rms error [{unit}]")
@@ -180,16 +185,21 @@ def history_figure(entries: list[dict], path: Path) -> None:
     by_data: dict[str, list[dict]] = {}
     for e in entries:
         by_data.setdefault(e["data"], []).append(e)
+    labels: list[str] = []
     for data, es in by_data.items():
         x = np.arange(len(es))
         ax.plot(x, [e["error"] for e in es], "o-", label=f"{Path(data).name}: error")
         ax.plot(x, [e["noise_floor"] for e in es], "k--", lw=0.8)
         for i, e in enumerate(es):
-            ax.annotate(e["model"].split(" + ", 1)[-1][:40], (i, e["error"]), fontsize=7, rotation=20,
-                        textcoords="offset points", xytext=(4, 4))
-    ax.set_xlabel("compare run (model revision)")
+            ax.annotate(f"{e['error']:.3g}", (i, e["error"]), fontsize=8, textcoords="offset points", xytext=(5, 4))
+        if len(es) > len(labels):  # what each revision added to the one before
+            effects = [set(e["model"].split(" + ", 1)[-1].split(", ")) for e in es]
+            labels = ["first"] + ["+ " + ", ".join(sorted(b - a)) if b - a else "refit"
+                                  for a, b in zip(effects[:-1], effects[1:])]
+    ax.set_xticks(range(len(labels)), [lab[:40] for lab in labels], fontsize=8)
+    ax.set_xlabel("model revision")
     unit = entries[0]["error_unit"] if entries else ""
-    ax.set_ylabel(f"error [{unit}]")
+    ax.set_ylabel(f"error on held-out windows [{unit}]")
     ax.set_yscale("log")
     ax.set_title("model error across revisions (dashed: noise floor)")
     ax.legend(fontsize=8)

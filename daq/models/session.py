@@ -112,20 +112,17 @@ class Session:
         restarted from moved starts and the better one kept.
         """
         if warm is None:
-            held = neutral_strengths(model)
-            if held:
-                # effects added at their neutral value (`model add`): fit the model without them first (the
-                # same strengths held at neutral), then extend that fit, as diagnose does; from the file's
-                # values alone the added strength can fall into a poor basin (seen: accel-sign amp 0 -> a fit
-                # at 70 um where the nested one reaches 10 um)
-                base_model = model.model_copy(deep=True)
-                for k in held:  # the whole effect held: its other parameters mean nothing at neutral strength
-                    prefix = k.rsplit(".", 1)[0] + "."
-                    for name, par in base_model.params().items():
-                        if name.startswith(prefix):
-                            par.free = False
-                warm = self.fit(base_model, max_iter=max_iter)
+            chain = added_chain(model, self.cfg)
+            if chain:
+                # what `model add` left at neutral (effects, in the file's order, and mechanics set free at their
+                # config value): fit the model without them, then add them back one at a time, each fit starting
+                # from the one before, the path diagnose took. From the file's values at once a fit can fall into
+                # a poor basin (seen: accel-sign and the measured drive added together, 70 um where the chain
+                # reaches 7.5 um; the order matters too: the drive first, then accel-sign, also ended at 70 um)
                 cold = cold or dict(self.problem(model).builder.base_values)
+                warm = self.fit(chain[0], max_iter=max_iter)
+                for partial in chain[1:]:
+                    warm = self.fit(partial, warm=warm, cold=cold, max_iter=max_iter)
         pr = self.problem(model)
         params = model.params()
         free = model.free_names()
@@ -298,6 +295,31 @@ class Session:
         wsum = self.weighted(ms)
         keep = wsum <= 25.0 * np.median(wsum)
         return {k: float(math.sqrt(np.mean(v[keep]))) for k, v in ms.items()}
+
+
+def added_chain(model: Model, cfg: RigConfig) -> list[Model]:
+    """The models a fit of ``model`` passes through when `model add` left things at neutral: the model without
+    them, then with one more each time, in the file's order (mechanics first), ending before ``model`` itself.
+    Empty when nothing sits at neutral (a fitted model file, a seed model)."""
+    held_effects = [name for name, eff in model.effects.items()
+                    if eff.path is None and name not in cfg.seed_effects and name in CATALOG
+                    and (not CATALOG[name].params_for(model.rig, eff.form)
+                         or f"effects.{name}.{strength_key(model.rig, name, eff.form)}" in neutral_strengths(model))]
+    held_mech = [k for k, par in model.mechanics.items()
+                 if par.free and par.value == float(getattr(cfg.mechanics, k, float("nan")))]
+    if not held_effects and not held_mech:
+        return []
+    steps = [("mechanics", k) for k in held_mech] + [("effect", n) for n in held_effects]
+    out = []
+    for upto in range(len(steps)):  # steps[:upto] are in; the rest held out
+        m = model.model_copy(deep=True)
+        for kind, name in steps[upto:]:
+            if kind == "effect":
+                del m.effects[name]
+            else:
+                m.mechanics[name].free = False
+        out.append(m)
+    return out
 
 
 def neutral_strengths(model: Model) -> list[str]:

@@ -287,7 +287,7 @@ START: dict[str, dict[str, float]] = {
     "normal-load": {"weight": 1.0},
     "geometric": {"weight": 1.0},
     "stick-time": {"tau": 0.5},
-    "stick-time/log": {"tau": 0.05},
+    "stick-time/log": {"tau": 0.05, "dc": 1e-3},
     "accel-sign/body": {"a0": 1.0},
     "force-rate": {"q0": 1.0},
     "belt-speed/lag-ripple": {"ripple": 0.0},

@@ -18,6 +18,7 @@ from scipy.linalg import eigh
 
 from .contact import AUX, N_AUX
 from .effects import (
+    DC_MIN,
     N_E,
     TAIL,
     E,
@@ -25,6 +26,7 @@ from .effects import (
     aging_log,
     arrhenius_factor,
     body_accel_factor,
+    dieterich_rate,
     drive_speed,
     env_rates,
     normal_load,
@@ -123,6 +125,8 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, abs(e[E.ST_GAIN]) + abs(e[E.ST_LOG_GAIN]), e[E.FR_GAIN],
                                     e[E.V_STICK],
                                     e[E.FR_TAU], e[E.ST_RESET])
+    if e[E.ST_DC] > 0.0 and e[E.ST_LOG_GAIN] != 0.0:  # the log form with Dieterich's state for its clock
+        d_ts = dieterich_rate(v_rel, ts, max(e[E.ST_DC], DC_MIN))
     d_temp, d_lag, d_pos = env_rates(f * v_rel, v_cmd, vb, t, temp, v_lag, e[E.T_AMB], e[E.TH_DRIFT],
                                      e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])
     ds[0] = x2

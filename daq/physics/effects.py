@@ -62,9 +62,11 @@ class E(IntEnum):
     AS_BODY_AMP = 32  # accel-sign keyed to the body's acceleration: mu x (1 + amp) while it accelerates [-]
     TEMP_ARR = 33  # temperature, Arrhenius-like: mu x exp(theta (1/T - 1/T_ref)), T in kelvin; theta [K]
     AS_BODY_A0 = 34  # accel-sign (body form): acceleration scale of its smooth switch tanh(a/a0) [m/s^2]
+    ST_DC = 35  # stick-time (log form): Dieterich's critical slip distance Dc of the aging law [m]; 0 = stick clock
 
 
 N_E = len(E)
+DC_MIN = 2e-4  # [m] the smallest Dc the aging law uses: |v|/Dc stays within RK4's stable step at 0.5 ms
 
 
 class TAIL(IntEnum):
@@ -213,8 +215,10 @@ CATALOG: dict[str, EffectSpec] = {
             forms={"log": FormSpec(
                 meaning="static (peak) friction grows with the logarithm of adhesion time (Dieterich)",
                 params={"*": (
-                    _p("gain", E.ST_LOG_GAIN, "-", 0.0, 0.0, 2.0, "b in 1 + b ln(1 + t_s/tau)"),
+                    _p("gain", E.ST_LOG_GAIN, "-", 0.0, 0.0, 2.0, "b in 1 + b ln(1 + theta/tau)"),
                     _p("tau", E.ST_TAU, "s", 1.0, 0.001, 100.0, "cut-off time of the aging law"),
+                    _p("dc", E.ST_DC, "m", 0.0, 0.0, 0.01,
+                       "Dieterich's Dc: theta follows d theta/dt = 1 - |v_rel| theta/Dc (0: the stick clock)"),
                 )})},
         ),
         EffectSpec(
@@ -377,6 +381,13 @@ def aging_log(ts: float, gain: float, tau: float) -> float:
     if gain == 0.0:
         return 0.0
     return gain * math.log1p(max(ts, 0.0) / tau)
+
+
+@helper
+def dieterich_rate(v_rel: float, theta: float, dc: float) -> float:
+    """Dieterich's aging law for the contact state: d theta/dt = 1 - |v_rel| theta / Dc (a time in contact that
+    grows while the contact barely moves and is wiped out over a slip of a few Dc)."""
+    return 1.0 - abs(v_rel) * theta / dc
 
 
 @helper
