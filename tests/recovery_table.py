@@ -39,7 +39,8 @@ from refsim import make as refsim  # noqa: E402
 
 from daq.cli.main import main as daq  # noqa: E402
 
-RAMPS = {"A": (0.17, 45.0, 40.0), "B": (0.25, 60.0, 52.0)}  # V0 [m/s], Tmax [s], record length [s]: to near belt stop
+RAMPS = {"A": (0.17, 45.0, 40.0), "B": (0.25, 60.0, 52.0),  # V0 [m/s], Tmax [s], record length [s]: to near stop
+         "C": (0.17, 45.0, 20.0)}  # short: the suite's subset (tests/test_recovery.py)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from .data import Measured, RigData
 WINDOW_CYCLES = 1.5  # window length in stick-slip periods
 BROYDEN = True  # carry the Jacobian by rank-one updates between finite-difference refreshes (see Problem.fit)
 MIN_WINDOW_SAMPLES = 12
+MIN_WINDOWS = 12  # fewer windows starting in stick than this: windows start anywhere the drive moves
 # Initial Levenberg-Marquardt damping of a window's own fit (fit_starts). Why high: the start comes
 # from the data and is close; a near-Gauss-Newton first step through a break-away can jump to another
 # basin that is better than the start but far from the best (seen on one 100 Hz window: 865 um after
@@ -86,24 +87,9 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
     # says nothing about friction, and there the command and the belt disagree about when motion starts
     moving = np.abs(m.drive_measured) > 0.05 * np.max(np.abs(m.drive_measured))
     moving &= np.abs(m.drive_command) > 0.05 * np.max(np.abs(m.drive_command))
-    good = stuck.mean() > 0.05
-    starts: list[int] = []
-    i = edge
-    while i + L + edge <= m.n:
-        if good:
-            j = i
-            limit = min(m.n - L - edge, i + L)
-            while j < limit and not (stuck[j] and stuck[max(j - 2, 0)] and moving[j] and moving[min(j + L, m.n - 1)]):
-                j += 1
-            if j >= limit:
-                i = limit + 1
-                continue
-            i = j
-        if not good and not (moving[i] and moving[min(i + L, m.n - 1)]):
-            i += 1
-            continue
-        starts.append(i)
-        i += L
+    starts = _window_starts(m.n, L, edge, stuck, moving, in_stick=stuck.mean() > 0.05)
+    if len(starts) < MIN_WINDOWS:  # sticks too rare to start enough windows in them: start them anywhere
+        starts = max(starts, _window_starts(m.n, L, edge, stuck, moving, in_stick=False), key=len)
     if not starts:
         starts = [edge]
     s = np.asarray(starts, dtype=int)
@@ -113,6 +99,29 @@ def make_windows(m: Measured, v_stick: float, window_s: float | None = None, max
     if s.size < 3:
         held[:] = False
     return Windows(s, L, held, transient_windows(m, s, L))
+
+
+def _window_starts(n: int, L: int, edge: int, stuck: np.ndarray, moving: np.ndarray, in_stick: bool) -> list[int]:
+    """Window starts, one window length apart at least; with ``in_stick`` each at the first stuck sample after
+    that (a search that finds none within a window length skips it)."""
+    starts: list[int] = []
+    i = edge
+    while i + L + edge <= n:
+        if in_stick:
+            j = i
+            limit = min(n - L - edge, i + L)
+            while j < limit and not (stuck[j] and stuck[max(j - 2, 0)] and moving[j] and moving[min(j + L, n - 1)]):
+                j += 1
+            if j >= limit:
+                i = limit + 1
+                continue
+            i = j
+        if not in_stick and not (moving[i] and moving[min(i + L, n - 1)]):
+            i += 1
+            continue
+        starts.append(i)
+        i += L
+    return starts
 
 
 def transient_windows(m: Measured, starts: np.ndarray, length: int) -> np.ndarray:
