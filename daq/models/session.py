@@ -322,36 +322,33 @@ def added_chain(model: Model, cfg: RigConfig) -> list[Model]:
     return out
 
 
-def neutral_strengths(model: Model) -> list[str]:
-    """Free catalog-effect strengths that sit at their neutral value: an effect just added by `model add`."""
+def _free_strengths(model: Model, values: dict[str, float]) -> list[tuple[str, str, float]]:
+    """(effect name, strength's full name, its neutral value) of every catalog effect whose strength is free."""
     out = []
     params = model.params()
     for name, eff in model.effects.items():
-        spec = CATALOG.get(name)
-        if spec is None or eff.path is not None:
+        if name not in CATALOG or eff.path is not None:
             continue
         key = strength_key(model.rig, name, eff.form)
         full = f"effects.{name}.{key}"
-        if key is not None and full in params and params[full].free and \
-                params[full].value == spec.params_for(model.rig, eff.form)[0].neutral:
-            out.append(full)
+        if key is not None and full in values and params[full].free:
+            out.append((name, full, CATALOG[name].params_for(model.rig, eff.form)[0].neutral))
     return out
+
+
+def neutral_strengths(model: Model) -> list[str]:
+    """Free catalog-effect strengths that sit at their neutral value: an effect just added by `model add`."""
+    values = {k: p.value for k, p in model.params().items()}
+    return [full for _, full, neutral in _free_strengths(model, values) if values[full] == neutral]
 
 
 def strength_starts(model: Model, values: dict[str, float]) -> dict[str, float]:
     """Generic non-zero starts for every free catalog-effect strength that sits at its neutral value."""
     out = {}
-    for name, eff in model.effects.items():
-        spec = CATALOG.get(name)
-        if spec is None or eff.path is not None:
-            continue
-        key = strength_key(model.rig, name, eff.form)
-        full = f"effects.{name}.{key}"
-        start = STRENGTH_START.get(form_key(name, eff.form))
-        if key is None or start is None or full not in values or not model.params()[full].free:
-            continue
-        neutral = spec.params_for(model.rig, eff.form)[0].neutral
-        if values[full] == neutral:
-            p = model.params()[full]
+    params = model.params()
+    for name, full, neutral in _free_strengths(model, values):
+        start = STRENGTH_START.get(form_key(name, model.effects[name].form))
+        if start is not None and values[full] == neutral:
+            p = params[full]
             out[full] = float(np.clip(start, p.lo if p.lo is not None else -np.inf, p.hi if p.hi is not None else np.inf))
     return out

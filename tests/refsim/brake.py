@@ -143,9 +143,29 @@ def integrate(rhs, y0, t_eval, kinks, atol, *, rtol: float = 1e-7, method: str =
     return out, nfev, time.perf_counter() - w0
 
 
-class BrakeRig:
+class ReferenceRig:
+    """What both reference rigs share: integration over the sample instants, the contact quantities along it.
+    A rig defines ``atol`` (per state), ``drive``, ``initial_state()``, ``rhs(t, y)`` and ``_eval(t, y, full)``."""
+
+    atol: np.ndarray
+
+    def simulate(self, t_eval: np.ndarray, *, rtol: float = 1e-7, atol_scale: float = 1.0,
+                 method: str = "RK45", max_step: float = 1e-3, y0: np.ndarray | None = None) -> Trajectory:
+        """Integrate from t = 0 and return the states (and contact quantities) at the sorted instants t_eval."""
+        y0 = self.initial_state() if y0 is None else y0
+        y, nfev, wall = integrate(self.rhs, y0, t_eval, self.drive.kinks(float(t_eval[-1])), self.atol * atol_scale,
+                                  rtol=rtol, method=method, max_step=max_step)
+        return Trajectory(np.asarray(t_eval, dtype=float), y, self.aux(t_eval, y), nfev, wall)
+
+    def aux(self, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
+        rows = [self._eval(float(ti), yi, full=True)[1] for ti, yi in zip(t, y)]
+        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
+
+
+class BrakeRig(ReferenceRig):
     """The brake-2dof rig with hidden effects, driven by a :class:`effects.Drive`."""
 
+    atol = ATOL
     rig = RIG
 
     def __init__(self, cfg: dict | None = None, effects=(), drive: fx.Drive | None = None,
@@ -303,18 +323,6 @@ class BrakeRig:
         s[5] = self.sl["Dc"] / abs(v0) if v0 != 0.0 else 1.0
         s[8] = v0
         return s
-
-    def simulate(self, t_eval: np.ndarray, *, rtol: float = 1e-7, atol_scale: float = 1.0,
-                 method: str = "RK45", max_step: float = 1e-3, y0: np.ndarray | None = None) -> Trajectory:
-        """Integrate from t = 0 and return the states (and contact quantities) at the sorted instants t_eval."""
-        y0 = self.initial_state() if y0 is None else y0
-        y, nfev, wall = integrate(self.rhs, y0, t_eval, self.drive.kinks(float(t_eval[-1])), ATOL * atol_scale,
-                                  rtol=rtol, method=method, max_step=max_step)
-        return Trajectory(np.asarray(t_eval, dtype=float), y, self.aux(t_eval, y), nfev, wall)
-
-    def aux(self, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
-        rows = [self._eval(float(ti), yi, full=True)[1] for ti, yi in zip(t, y)]
-        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
     def true_channels(self, tr: Trajectory) -> dict[str, np.ndarray]:
         """What the interchange channels read, without instrument errors."""

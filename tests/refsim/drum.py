@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import effects as fx
-from .brake import Trajectory, integrate
+from .brake import ReferenceRig, Trajectory
 
 RIG = "drum-pendulum"
 STATE = ("phi", "phi_dot", "temp_K", "theta_s", "q", "acc_f", "v_lag", "v_lag_dot", "travel")
@@ -80,9 +80,10 @@ def params_from_config(cfg: dict) -> DrumParams:
     )
 
 
-class DrumRig:
+class DrumRig(ReferenceRig):
     """The drum-pendulum rig with hidden effects, driven by a :class:`effects.Drive` (drum surface speed)."""
 
+    atol = ATOL
     rig = RIG
 
     def __init__(self, cfg: dict | None = None, effects=(), drive: fx.Drive | None = None,
@@ -180,17 +181,6 @@ class DrumRig:
         s[3] = self.sl["Dc"] / abs(v0) if v0 != 0.0 else 1.0
         s[6] = v0
         return s
-
-    def simulate(self, t_eval: np.ndarray, *, rtol: float = 1e-7, atol_scale: float = 1.0,
-                 method: str = "RK45", max_step: float = 1e-3, y0: np.ndarray | None = None) -> Trajectory:
-        y0 = self.initial_state() if y0 is None else y0
-        y, nfev, wall = integrate(self.rhs, y0, t_eval, self.drive.kinks(float(t_eval[-1])), ATOL * atol_scale,
-                                  rtol=rtol, method=method, max_step=max_step)
-        return Trajectory(np.asarray(t_eval, dtype=float), y, self.aux(t_eval, y), nfev, wall)
-
-    def aux(self, t: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
-        rows = [self._eval(float(ti), yi, full=True)[1] for ti, yi in zip(t, y)]
-        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
     def true_channels(self, tr: Trajectory) -> dict[str, np.ndarray]:
         p = self.p
