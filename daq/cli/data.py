@@ -14,7 +14,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     # heavy: h5py, numpy, nptdms
     from daq.io.importer import import_file
 
-    import_file(args.file, args.rig, args.output)
+    import_file(args.file, args.rig, args.output, maps=args.map, time=args.time, rate=args.rate)
     print(f"imported {args.file} -> {args.output}", file=sys.stderr)
     return 0
 
@@ -29,9 +29,17 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    imp = sub.add_parser("import", help="bring a CSV or LabVIEW TDMS file into the recording format")
-    imp.add_argument("file")
-    imp.add_argument("--rig", required=True)
+    imp = sub.add_parser("import", help="bring a CSV, TDMS, MATLAB or text file into the recording format",
+                         description="An interchange CSV or TDMS needs no options. Any other file: name its time "
+                                     "(--time) or rate (--rate) and map its variables to the rig's channels, "
+                                     "e.g. --map \"x1=F_over_mg*0.05*9.81/200\" --map vb=5e-5.")
+    imp.add_argument("file", help="FILE.csv|.tsv|.txt|.dat|.mat|.tdms")
+    imp.add_argument("--rig", required=True, help="a built-in rig or a rig TOML file")
+    imp.add_argument("--time", metavar="EXPR", help="the time [s]: a variable, or arithmetic over variables")
+    imp.add_argument("--rate", type=float, metavar="HZ", help="samples at this rate from t = 0 (no time variable)")
+    imp.add_argument("--map", action="append", default=[], metavar="CHANNEL=EXPR",
+                     help="a channel from arithmetic over the file's variables (+ - * / ** %%, numbers, "
+                          "sqrt exp log sin cos ...; names with other characters in `backticks`); repeatable")
     imp.add_argument("-o", "--output", required=True, help="OUT.h5")
     imp.set_defaults(func=cmd_import)
 

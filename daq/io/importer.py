@@ -1,4 +1,5 @@
-"""``daq import``: interchange CSV and LabVIEW TDMS files -> the recorder's HDF5 run format; and back to CSV.
+"""``daq import``: a lab's file (interchange CSV, TDMS, MATLAB, any text) -> the recorder's HDF5 run format;
+and back to CSV.
 
 Why: analysis reads one format. An imported file becomes a run file (``friction-daq run 1``)
 with one stream, ``import``, holding the file's columns; times are kept as they are in the
@@ -10,23 +11,30 @@ channels, SI units, ``t`` in seconds. A CSV header may carry a unit in brackets
 (``x1 [m]``); a TDMS channel may carry ``unit_string``. A unit that is not the channel's SI
 unit is refused (we do not convert silently). TDMS: the channels in one group, with a
 ``t`` channel or waveform timing (``wf_start_offset``, ``wf_increment``).
+
+Any other file (MATLAB ``.mat`` v5 or v7.3, ``.tsv``/``.txt``/``.dat``, or a CSV or TDMS with its own names)
+goes through ``--map CHANNEL=EXPR`` (arithmetic over the file's variables, ``daq/io/expressions.py``) and
+``--time EXPR`` or ``--rate HZ``. The maps, the time and the source are stored in the run's attributes;
+the file's other vectors are kept as channels too (``/`` in a name becomes ``.``; a name a map took is
+kept as ``file.NAME``). A mapped channel is in SI units by contract: the expression does the conversion.
 """
 
 from __future__ import annotations
 
-import logging
+import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from nptdms import TdmsFile
 
 from daq.config import RigConfig, load_rig
 from daq.errors import InputError
 from daq.io.runfile import RunWriter
 
+from .expressions import Expression
 from .interchange import STREAM_RESERVED, atomic_path, read_csv, read_recording, write_csv
+from .sources import SourceFile, open_tdms, read_source, split_header
 from .stream_format import BusEvent, StreamMeta, make_block
 
 IMPORT_STREAM = "import"
@@ -43,7 +51,6 @@ SI_SPELLINGS: dict[str, set[str]] = {
     "degC": {"degc", "°c", "℃", "c", "celsius", "degcelsius", "deg_c"},
     "count": {"count", "counts", "1", "-", "#"},
 }
-_HEADER_UNIT = re.compile(r"^\s*([^\[\]()]+?)\s*[\[(]\s*([^\[\]()]*?)\s*[\])]\s*$")
 
 
 @dataclass
@@ -75,12 +82,6 @@ def is_si(unit: str | None, canonical: str) -> bool:
     return u == canonical.casefold() or u in SI_SPELLINGS.get(canonical, set())
 
 
-def split_header(name: str) -> tuple[str, str | None]:
-    """``"x1 [m]"`` -> ("x1", "m"); ``"x1"`` -> ("x1", None)."""
-    m = _HEADER_UNIT.match(name)
-    return (m.group(1), m.group(2)) if m else (name.strip(), None)
-
-
 def read_csv_table(path: str | Path) -> Table:
     """An interchange CSV (via ``interchange.read_csv``), with any bracketed units split off the header."""
     src = str(path)
@@ -101,17 +102,7 @@ def read_tdms_table(path: str | Path) -> Table:
     """A LabVIEW TDMS file: one group of channels named as the interchange columns."""
 
     src = str(path)
-    log = logging.getLogger("nptdms")
-    level = log.level
-    log.setLevel(logging.ERROR)  # its warnings about damaged segments would break the one-line error contract
-    try:
-        tf = TdmsFile.read(path)
-    except FileNotFoundError as exc:
-        raise InputError(src, "(file)", exc.strerror or str(exc)) from None
-    except Exception as exc:  # nptdms raises assorted errors on a damaged file
-        raise InputError(src, "(file)", f"not a readable TDMS file ({type(exc).__name__}: {exc})") from None
-    finally:
-        log.setLevel(level)
+    tf = open_tdms(path)
     groups = [g for g in tf.groups() if g.channels()]
     if not groups:
         raise InputError(src, "(file)", "no TDMS group with channels (not a TDMS file, or empty)")
@@ -184,26 +175,119 @@ def validate(table: Table, cfg: RigConfig) -> tuple[list[str], list[str]]:
     return channels, units
 
 
-def import_file(path: str | Path, rig: str | Path, out: str | Path) -> Path:
-    """Import a CSV or TDMS file for ``rig`` into a run HDF5 file at ``out``; nothing is written on error."""
+def channel_name_ok(name: str) -> bool:
+    return bool(name) and "/" not in name and name not in (".", "..", "t") and name not in STREAM_RESERVED
+
+
+def parse_maps(maps: list[str], src: SourceFile) -> dict[str, Expression]:
+    """``CHANNEL=EXPR`` strings -> parsed expressions; one InputError naming the ``--map`` on a bad one."""
+    out: dict[str, Expression] = {}
+    names = [*src.variables, *src.scalars]
+    for text in maps:
+        channel, eq, expr = text.partition("=")
+        channel = channel.strip()
+        where = f"--map {channel or text}"
+        if not eq:
+            raise InputError(src.source, where, f"expected CHANNEL=EXPR, got {text!r}")
+        if not channel_name_ok(channel):
+            raise InputError(src.source, where, f"{channel!r} cannot be a channel name")
+        if channel in out:
+            raise InputError(src.source, where, "mapped twice")
+        out[channel] = Expression.parse(expr, names, src.source, where)
+    return out
+
+
+def default_time(src: SourceFile) -> str | None:
+    """The file's time variable when it has an obvious one: ``t``, ``time``, or one ``…/t``, ``….time``."""
+    for want in ("t", "time"):
+        hits = [n for n in src.variables if re.split(r"[./]", n)[-1].casefold() == want]
+        if len(hits) == 1:
+            return hits[0]
+    return None
+
+
+def mapped_table(src: SourceFile, cfg: RigConfig, maps: list[str], time: str | None,
+                 rate: float | None) -> tuple[Table, dict[str, object]]:
+    """The file's variables -> the interchange columns of ``cfg``'s rig, and the attributes that say how."""
+    n = src.sample_count()
+    env: dict[str, np.ndarray | float] = {**src.scalars, **{k: v for k, v in src.variables.items() if v.size == n}}
+    if time is not None and rate is not None:
+        raise InputError(src.source, "--time/--rate", "give one of --time and --rate, not both")
+    if rate is not None:
+        if not rate > 0:
+            raise InputError(src.source, "--rate", f"must be > 0 Hz, got {rate}")
+        t, how = np.arange(n) / rate, f"{rate:g} Hz from sample 0"
+    else:
+        if time is None:
+            time = default_time(src)
+        if time is None and src.waveform_t is not None and src.waveform_t.size == n:
+            t, how = src.waveform_t, "TDMS waveform timing"
+        elif time is None:
+            raise InputError(src.source, "--time", "no time variable t or time in the file: give --time VAR or "
+                                                   "--rate HZ")
+        else:
+            t = Expression.parse(time, list(env), src.source, "--time").evaluate(env, n)
+            how = time
+            if not is_si(src.units.get(time), "s"):
+                raise InputError(src.source, f"--time {time}", f"unit {src.units[time]!r} is not seconds: convert "
+                                                               f"in the expression (e.g. --time \"{time}/1000\")")
+        if not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+            bad = int(np.argmax(~(np.diff(t) > 0))) + 1 if np.all(np.isfinite(t)) else int(np.argmax(~np.isfinite(t)))
+            raise InputError(src.source, f"--time {how}", f"time must be finite and strictly increasing "
+                                                          f"(sample {bad}: {t[bad]!r} after {t[max(bad - 1, 0)]!r})")
+    exprs = parse_maps(maps, src)
+    table = Table(src.source, src.kind, t, None)
+    for channel, expr in exprs.items():
+        table.columns[channel] = (expr.evaluate(env, n), None)
+    kept = []
+    for name, values in src.variables.items():
+        if values.size != n or name == time:
+            continue
+        store = name.replace("/", ".")
+        if store in table.columns or not channel_name_ok(store):
+            store = f"file.{store}"
+        if store not in table.columns:
+            table.columns[store] = (values, src.units.get(name))
+            kept.append(name)
+    attrs = {"import_time": how, "import_map": json.dumps({c: e.text for c, e in exprs.items()}),
+             "import_kept": json.dumps(kept),
+             "import_skipped": json.dumps({**src.skipped, **{k: f"{v.size} samples, the record has {n}"
+                                                            for k, v in src.variables.items() if v.size != n}}),
+             "import_scalars": json.dumps(src.scalars)}
+    return table, attrs
+
+
+def import_file(path: str | Path, rig: str | Path, out: str | Path, maps: list[str] | None = None,
+                time: str | None = None, rate: float | None = None) -> Path:
+    """Import a file for ``rig`` into a run HDF5 file at ``out``; nothing is written on error.
+
+    An interchange CSV or a TDMS with the interchange's names needs no options; any other file (or any
+    file given ``maps``, ``time`` or ``rate``) goes through the mapping."""
 
     out = Path(out)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise InputError(str(out), "-o", "output must end in .h5 or .hdf5")
     cfg = load_rig(rig)
-    table = read_table(path)
+    suffix = Path(path).suffix.lower()
+    if maps or time is not None or rate is not None or suffix not in (".csv", ".tdms"):
+        source = read_source(path)
+        table, extra = mapped_table(source, cfg, list(maps or []), time, rate)
+        kind = source.kind
+    else:
+        table, extra = read_table(path), {}
+        kind = table.kind
     channels, units = validate(table, cfg)
     dt = float(np.median(np.diff(table.t)))
     meta = StreamMeta(stream=IMPORT_STREAM, channels=tuple(channels), units=tuple(units), rig=cfg.rig,
                       source=Path(path).name, rate_hz=1.0 / dt)
     data = np.column_stack([table.columns[c][0] for c in channels])
     block = make_block(meta, 0, table.t, data)
-    attrs = {"source": "import", "source_file": str(path), "source_format": table.kind, **table.attrs}
+    attrs = {"source": "import", "source_file": str(path), "source_format": kind, **table.attrs, **extra}
     with atomic_path(out) as tmp:
         w = RunWriter().open(tmp, cfg, "", attrs, streams=[(meta, False)], start_host_time=0.0)
         try:
             w.event(BusEvent(kind="import", source="importer", host_time=float(table.t[0]),
-                             detail=f"{table.kind} file {path}: {len(channels)} channels, {table.t.size} samples"))
+                             detail=f"{kind} file {path}: {len(channels)} channels, {table.t.size} samples"))
             w.append(block)
         finally:
             w.close()
