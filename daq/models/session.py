@@ -158,7 +158,8 @@ class Session:
         if warm is not None and warm.problem.weights is not None:
             pr.weights = warm.problem.weights.copy()  # the same windows count as in the fit it extends
         res = self._fit_from(pr, starts, free, bounds, fw, max_iter, reweight=warm is None)
-        if nested is not None and res.cost > warm.fit.cost * (1.0 + 1e-9):
+        extends = warm is not None and set(warm.model.free_names()) <= set(free)  # (not a model with less)
+        if nested is not None and extends and res.cost > warm.fit.cost * (1.0 + 1e-9):
             again = self._fit_from(pr, [nested], free, bounds, fw, max_iter)
             res = again if again.cost < res.cost else res
         stalled = self._stalled(res, starts, free, bounds)
