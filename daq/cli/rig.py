@@ -1,4 +1,5 @@
-"""``daq rig list|show``: the built-in rigs, their parameters, channels and eigenfrequencies.
+"""``daq rig list|show|init``: the built-in rigs, their parameters, channels and eigenfrequencies; a user's
+own copy of one to edit (every command that takes ``--rig`` takes its path too).
 
 Heavy modules are imported inside the command functions (marked ``# heavy``): `daq --help`
 imports every cli module and must stay fast.
@@ -7,8 +8,19 @@ imports every cli module and must stay fast.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 from daq.io.jsonout import print_json
+
+USER_RIG_HEADER = """\
+# Your own rig, copied from the built-in '{rig}' by `daq rig init`. Edit what your rig has: masses,
+# stiffnesses, damping, normal load, drive speed, sensor rates and noise; keep `rig = "{rig}"` (it names
+# the equations). Every command that takes --rig (and a model file's rig) accepts this file's path:
+#   daq rig show {out}      daq sim {out} ...      daq model init {out} -o model.toml
+# A value out of range is one error naming this file and the field.
+
+"""
 
 
 def cmd_rig_list(args: argparse.Namespace) -> int:
@@ -72,11 +84,39 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_rig_init(args: argparse.Namespace) -> int:
+    # heavy: config validation (pydantic)
+    from daq.config import CONFIG_DIR, load_rig, parse_rig, parse_toml
+    from daq.errors import InputError
+    from daq.io.files import atomic_path
+
+    cfg = load_rig(args.rig)
+    out = Path(args.output)
+    if out.suffix.lower() != ".toml":
+        raise InputError(str(out), "-o", "a rig file must end in .toml")
+    if out.exists() and not args.force:
+        raise InputError(str(out), "-o", "exists (give --force to overwrite)")
+    source = Path(args.rig) if Path(args.rig).suffix else CONFIG_DIR / f"{cfg.rig}.toml"
+    text = source.read_text(encoding="utf-8")
+    if not text.startswith("# Your own rig"):
+        text = USER_RIG_HEADER.format(rig=cfg.rig, out=out.name) + text
+    parse_rig(parse_toml(text, str(out)), str(out))  # what we write must load
+    with atomic_path(out) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    print(f"wrote {out}: an editable copy of {cfg.rig} ({cfg.title})", file=sys.stderr)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     rig = sub.add_parser("rig", help="rig configurations")
     rsub = rig.add_subparsers(dest="rig_command", required=True)
     rsub.add_parser("list", help="list rigs").set_defaults(func=cmd_rig_list)
     show = rsub.add_parser("show", help="parameters, channels, eigenfrequencies")
-    show.add_argument("rig")
+    show.add_argument("rig", help="a built-in rig or a rig TOML file")
     show.add_argument("--json", action="store_true")
     show.set_defaults(func=cmd_rig_show)
+    init = rsub.add_parser("init", help="write an editable copy of a rig for your own set-up")
+    init.add_argument("rig", help="the built-in rig (or a rig file) to start from")
+    init.add_argument("-o", "--output", required=True, help="MY-RIG.toml")
+    init.add_argument("--force", action="store_true", help="overwrite an existing file")
+    init.set_defaults(func=cmd_rig_init)

@@ -355,8 +355,10 @@ def seed_model(rig: str) -> Model:
         effects[name] = Effect(params=params)
     seeds = {"brake-2dof": "paper 001 eqs. 5-7", "drum-pendulum": "paper 002 eqs. 1-3",
              "belt-ndof": "paper 000 eqs. 1-5"}
+    # a user's rig file (a path, not a built-in id) travels with the model: its masses and springs are the rig's
+    own = str(Path(rig).resolve()) if Path(rig).suffix else None
     return Model(rig=cfg.rig, law=cfg.friction.law, title=f"seed model of {cfg.rig} ({seeds.get(cfg.rig, '')})",
-                 friction=friction, effects=effects)
+                 rig_config=own, friction=friction, effects=effects)
 
 
 def add_effect(model: Model, name: str, source: str = "model add", path: str | None = None,
