@@ -60,6 +60,25 @@ class Recording:
     truth: dict[str, np.ndarray] = field(default_factory=dict)
     events: list[dict[str, object]] = field(default_factory=list)  # see events_from_array
 
+    # notebook views (daq/io/frames.py, which imports this module: hence the imports inside)
+    def to_pandas(self):
+        """The samples as a pandas DataFrame indexed by t [s]; units and attributes in ``.attrs``."""
+        from .frames import to_pandas
+
+        return to_pandas(self)
+
+    def events_to_pandas(self):
+        """The events as their own pandas DataFrame."""
+        from .frames import events_to_pandas
+
+        return events_to_pandas(self)
+
+    def to_xarray(self):
+        """The samples (and events, over their own dimension) as an xarray Dataset with units."""
+        from .frames import to_xarray
+
+        return to_xarray(self)
+
 
 def events_to_array(events: list[dict[str, object]]) -> np.ndarray:
     """Event dicts (keys as EVENT_FIELDS; count/gap_s may be None) as rows of the /events table."""
