@@ -1,4 +1,4 @@
-"""A recording in one call from Python, as notebooks take it: ``daq.open`` -> pandas DataFrame (samples, and
+"""A recording in one call from Python, as notebooks take it: ``daq.io.open`` -> pandas DataFrame (samples, and
 events as their own table) and xarray Dataset, with units and the rig config as attributes."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 import scipy.io
 import xarray as xr
 
-import daq
+import daq.io
 from daq.errors import InputError
 from daq.io.importer import import_file
 
@@ -27,7 +27,7 @@ def mat(tmp_path):
 
 def test_open_a_run_file_to_pandas_with_units_rig_and_events(tmp_path, mat):
     run = import_file(mat, "belt-ndof", tmp_path / "run.h5", maps=MAPS)
-    rec = daq.open(run)
+    rec = daq.io.open(run)
     df = rec.to_pandas()
     assert df.index.name == "t" and np.allclose(df.index.to_numpy(), T)
     np.testing.assert_allclose(df["x1"].to_numpy(), F_OVER_MG * 0.05)
@@ -38,7 +38,7 @@ def test_open_a_run_file_to_pandas_with_units_rig_and_events(tmp_path, mat):
 
 
 def test_to_xarray_keeps_units_events_and_survives_netcdf(tmp_path, mat):
-    rec = daq.open(mat, rig="belt-ndof", maps=MAPS)  # any importable file, through daq import's own path
+    rec = daq.io.open(mat, rig="belt-ndof", maps=MAPS)  # any importable file, through daq import's own path
     ds = rec.to_xarray()
     assert ds["x1"].attrs["units"] == "m" and ds["t"].attrs["units"] == "s"
     assert ds.sizes["t"] == N and ds.sizes["event"] == 1 and str(ds["event_kind"].values[0]) == "import"
@@ -54,5 +54,5 @@ def test_to_xarray_keeps_units_events_and_survives_netcdf(tmp_path, mat):
 
 def test_open_needs_the_rig_for_a_foreign_file(mat):
     with pytest.raises(InputError) as info:
-        daq.open(mat)
+        daq.io.open(mat)
     assert str(mat) in str(info.value) and "rig" in str(info.value)
