@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import expect_error, write
+from scipy.optimize import lsq_linear
 
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.models.session import Session
+from daq.models.shooting import bounded_step
 from daq.models.spec import add_effect, dumps, load_model, remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
@@ -171,3 +173,29 @@ def test_bad_user_effect_files_are_one_line_errors(tmp_path):
     with pytest.raises(InputError) as e:
         add_effect(m, "bad3", path=str(p))
     expect_error(e.value, str(p), "(import)", "nonexistent_module_xyz")
+
+
+def test_bounded_step_leaves_a_held_parameter_out_and_reaches_the_constrained_optimum():
+    """A quadratic with two coupled parameters, the first held at its upper bound 0 by the data's pull: the
+    active-set step solves for the other with it fixed (exact: scipy's bounded least squares agrees); the
+    full step clipped afterwards leaves the other where the unbounded optimum wanted it (a higher cost)."""
+    J = np.array([[1.0, 1.0], [1.0, 1.1], [0.0, 0.2], [0.3, 0.0]])
+    b = np.array([2.0, 2.3, 0.1, 1.0])
+    lo, hi = np.array([-np.inf, -np.inf]), np.array([0.0, np.inf])
+    x = np.zeros(2)
+    S, rhs = J.T @ J, -J.T @ (J @ x - b)
+    unbounded = np.linalg.solve(S, rhs)
+    assert unbounded[0] > 0  # the data pull the first parameter past its bound
+    active = x + bounded_step(S, rhs, x, lo, hi)
+    clipped = np.clip(x + unbounded, lo, hi)
+    best = lsq_linear(J, b, bounds=(lo, hi)).x
+    np.testing.assert_allclose(active, best, atol=1e-9)
+
+    def cost(v):
+        return 0.5 * float(np.sum((J @ v - b) ** 2))
+
+    assert cost(active) < 0.9 * cost(clipped)
+    # away from the bound nothing changes: the plain Gauss-Newton step
+    x2 = np.array([-1.0, 0.0])
+    rhs2 = -J.T @ (J @ x2 - b)
+    np.testing.assert_allclose(bounded_step(S, rhs2, x2, lo, hi), np.linalg.solve(S, rhs2))

@@ -362,6 +362,8 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     scored = sorted((score(base, current, fits[(c,)], (c,), floor, session, gains[c]) for c in chosen),
                     key=lambda s: -s.score)
     screened = sorted((Screened(c, g) for c, g in gains.items() if c not in chosen), key=lambda s: -s.predicted_gain)
+    if first and current.rms(session.primary) <= (1.0 + MIN_EXCESS) * floor:
+        return scored, screened, None  # no excess to explain (the singles only rank): no pairs either
     ok = [s for s in scored if passes(s)]
     if ok and ok[0].step_reduction >= PAIR_BELOW:
         return scored, screened, ok[0]

@@ -165,6 +165,22 @@ def window_weights(costs: np.ndarray, windows: np.ndarray, n_windows: int, cap: 
     return w
 
 
+def bounded_step(S: np.ndarray, rhs: np.ndarray, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The damped Gauss-Newton step S d = rhs with the parameters held at a bound that the step would push past
+    it left out (an active set): d = 0 for them, the others solved with them fixed.
+
+    Why not the full step, clipped: it assumes the held parameters move, so it is no descent direction for the
+    others when parameters are coupled, and the fit crawls along the bound (seen: Dieterich's Dc at its upper
+    bound, 40 iterations of tiny decreases, 63 % of the excess removed; with the active set Dc left the bound
+    and 95 % went, tests/test_models.py has the quadratic case)."""
+    held = ((theta <= lo) & (rhs < 0)) | ((theta >= hi) & (rhs > 0))
+    d = np.zeros_like(theta)
+    free = ~held
+    if free.any():
+        d[free] = np.linalg.solve(S[np.ix_(free, free)], rhs[free])
+    return d
+
+
 def start_jacobian(resid, V: np.ndarray, r: np.ndarray, vscale: np.ndarray) -> np.ndarray:
     """Per window, d(residuals)/d(start values) by forward differences: one simulation per start slot."""
     j = np.empty(r.shape + (V.shape[1],))
@@ -354,7 +370,7 @@ class Problem:
                 BCi = np.einsum("wij,wjk->wik", B, Ci)
                 S = Ad - np.einsum("wij,wkj->ik", BCi, B) if k else np.zeros((0, 0))
                 rhs = -ga + np.einsum("wij,wj->i", BCi, gc) if k else np.zeros(0)
-                dth = np.linalg.solve(S, rhs) if k else np.zeros(0)
+                dth = bounded_step(S, rhs, theta, lo, hi) if k else np.zeros(0)
                 dV = -np.einsum("wij,wj->wi", Ci, gc + np.einsum("wij,i->wj", B, dth))
                 th_new = np.clip(theta + dth, lo, hi)
                 V_new = V + dV
