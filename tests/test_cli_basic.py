@@ -9,6 +9,8 @@ import sys
 import h5py
 import numpy as np
 
+from daq.cli.demo import free_folder
+
 
 def daq(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "daq.cli", *args], capture_output=True, text=True, cwd=cwd)
@@ -111,3 +113,16 @@ def test_bench_sim_contract_keys():
     assert r["realtime_factor"] > 0 and r["speedup_vs_solve_ivp"] > 0
     assert r["max_abs_dev_x1_first_5s_m"] < 5e-5  # same equations, two integrators: microns apart
     assert r["baseline_nfev"] > 1000
+
+
+def test_a_second_demo_goes_to_the_next_free_folder(tmp_path):
+    """`make demo` twice runs twice: the default report folder moves on, the first report is kept."""
+    base = str(tmp_path / "out" / "demo")
+    assert free_folder(base) == base  # nothing there yet (or a folder without a recording)
+    (tmp_path / "out" / "demo").mkdir(parents=True)
+    assert free_folder(base) == base
+    (tmp_path / "out" / "demo" / "recording.h5").write_bytes(b"")
+    assert free_folder(base) == base + "-2"
+    (tmp_path / "out" / "demo-2").mkdir()
+    (tmp_path / "out" / "demo-2" / "recording.h5").write_bytes(b"")
+    assert free_folder(base) == base + "-3"

@@ -7,6 +7,19 @@ imports every cli module and must stay fast.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+DEFAULT_OUT = "out/demo"
+
+
+def free_folder(base: str) -> str:
+    """``base``, or ``base-2``, ``base-3``, ... the first that holds no earlier demo's recording: a second
+    `make demo` runs again and keeps the first one's report (a given --out is never renamed)."""
+    n, out = 1, base
+    while (Path(out) / "recording.h5").exists():
+        n += 1
+        out = f"{base}-{n}"
+    return out
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -14,6 +27,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     # heavy: the daemon, the simulators and the models
     from daq.demo import run_demo
 
+    if args.out is None:
+        args.out = free_folder(DEFAULT_OUT)
     r = run_demo(args.out, hidden=args.hidden, ramp_s=args.ramp_seconds, seed=args.seed)
     added = ", ".join(r["added"]) or "nothing"
     line = (f"demo: report in {args.out}/ (summary.json, history.png, one folder per round); added {added}; "
@@ -25,7 +40,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     demo = sub.add_parser("demo", help="the main job on simulated hardware")
-    demo.add_argument("--out", default="out/demo", help="report folder")
+    demo.add_argument("--out", help=f"report folder (default: {DEFAULT_OUT}, or {DEFAULT_OUT}-2, -3, ... when an "
+                                    "earlier demo is there)")
     demo.add_argument("--hidden", default="accel-sign", help="hidden effect of the simulated rig")
     demo.add_argument("--ramp-seconds", type=float, default=20.0, help="the 45 s seed ramp time-scaled to this")
     demo.add_argument("--seed", type=int, default=1, help="noise seed of the simulated instruments")
