@@ -337,13 +337,25 @@ def parse_rig(data: dict[str, Any], source: str) -> RigConfig:
         raise InputError(source, _field_path(err["loc"]), msg) from None
 
 
-def load_rig(name_or_path: str | Path) -> RigConfig:
-    """Load a rig by id (``brake-2dof``) or by path to a TOML file."""
+def user_rig_file(name_or_path: str | Path) -> str | None:
+    """A user's rig file (anything with a suffix) as an absolute path, so a reference to it holds from any
+    working directory; None for a built-in id (``brake-2dof``)."""
+    return str(Path(name_or_path).resolve()) if Path(name_or_path).suffix else None
+
+
+def rig_path(name_or_path: str | Path) -> Path:
+    """The TOML file of a rig id or of a user's rig file; one InputError for an unknown id."""
     path = Path(name_or_path)
     if not path.suffix:
         path = CONFIG_DIR / f"{name_or_path}.toml"
         if not path.exists():
             raise InputError(str(name_or_path), "rig", f"unknown rig (known: {', '.join(rig_ids())})")
+    return path
+
+
+def load_rig(name_or_path: str | Path) -> RigConfig:
+    """Load a rig by id (``brake-2dof``) or by path to a TOML file."""
+    path = rig_path(name_or_path)
     return parse_rig(parse_toml(read_text(path), str(path)), str(path))
 
 

@@ -64,7 +64,7 @@ def make_cfg(args: argparse.Namespace) -> CampaignCfg:
     from daq.analysis.campaign.state import CampaignCfg, cell_programme
     from daq.analysis.paper002.kinematics import V_MIN
     from daq.analysis.paper002.programme import HOLD_S, SWEEP_S
-    from daq.config import load_rig
+    from daq.config import load_rig, user_rig_file
     from daq.sim.effectset import parse_effect
 
     cfg = load_rig(args.rig)
@@ -87,7 +87,7 @@ def make_cfg(args: argparse.Namespace) -> CampaignCfg:
     if not args.sim and not args.endpoint:
         raise InputError("--endpoint", "--endpoint", "real hardware: start `daq daemon --rig CONFIG.toml` and pass "
                          "its control endpoint, or run against the simulated rig with --sim")
-    rig = str(Path(args.rig).resolve()) if Path(args.rig).suffix else args.rig
+    rig = user_rig_file(args.rig) or args.rig
     c = CampaignCfg(rig=rig, thrusts_N=thrusts, speeds_m_per_s=speeds, hold_s=hold, sweep_s=sweep, time_scale=ts,
                     sim=bool(args.sim), effects=list(args.effect), endpoint=args.endpoint,
                     v_min_m_per_s=V_MIN, cell_figures=not args.no_cell_figures)

@@ -86,7 +86,7 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
 
 def cmd_rig_init(args: argparse.Namespace) -> int:
     # heavy: config validation (pydantic)
-    from daq.config import CONFIG_DIR, load_rig, parse_rig, parse_toml
+    from daq.config import load_rig, parse_rig, parse_toml, rig_path
     from daq.errors import InputError
     from daq.io.files import atomic_path
 
@@ -96,8 +96,7 @@ def cmd_rig_init(args: argparse.Namespace) -> int:
         raise InputError(str(out), "-o", "a rig file must end in .toml")
     if out.exists() and not args.force:
         raise InputError(str(out), "-o", "exists (give --force to overwrite)")
-    source = Path(args.rig) if Path(args.rig).suffix else CONFIG_DIR / f"{cfg.rig}.toml"
-    text = source.read_text(encoding="utf-8")
+    text = rig_path(args.rig).read_text(encoding="utf-8")
     if not text.startswith("# Your own rig"):
         text = USER_RIG_HEADER.format(rig=cfg.rig, out=out.name) + text
     parse_rig(parse_toml(text, str(out)), str(out))  # what we write must load

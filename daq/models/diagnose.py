@@ -164,7 +164,7 @@ def _fit_task(task) -> tuple:
     current: Fitted = _STATE["current"]  # type: ignore[assignment]
     if task == FLOOR:
         return task, s.noise_floor(current)
-    root: Model = _STATE.get("root") or current.model  # type: ignore[assignment]
+    root: Model = _STATE["root"]  # type: ignore[assignment]
     f = s.fit(_extend(root, task), warm=current, cold=_STATE.get("cold"))  # type: ignore[arg-type]
     return task, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit, f.fit.cost, \
         f.fit.message, f.problem.weights

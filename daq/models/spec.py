@@ -26,7 +26,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from daq.config import RigConfig, load_rig
+from daq.config import RigConfig, load_rig, user_rig_file
 from daq.errors import InputError, parse_toml, read_text
 from daq.io.files import atomic_path
 from daq.physics.effects import CATALOG
@@ -356,9 +356,8 @@ def seed_model(rig: str) -> Model:
     seeds = {"brake-2dof": "paper 001 eqs. 5-7", "drum-pendulum": "paper 002 eqs. 1-3",
              "belt-ndof": "paper 000 eqs. 1-5"}
     # a user's rig file (a path, not a built-in id) travels with the model: its masses and springs are the rig's
-    own = str(Path(rig).resolve()) if Path(rig).suffix else None
     return Model(rig=cfg.rig, law=cfg.friction.law, title=f"seed model of {cfg.rig} ({seeds.get(cfg.rig, '')})",
-                 rig_config=own, friction=friction, effects=effects)
+                 rig_config=user_rig_file(rig), friction=friction, effects=effects)
 
 
 def add_effect(model: Model, name: str, source: str = "model add", path: str | None = None,
