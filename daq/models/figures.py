@@ -144,16 +144,24 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     gs = fig.add_gridspec(1, 3)
     ax = fig.add_subplot(gs[0, 0])
     added = {c.label for step in diag.sequence for c in step.cands} if diag.found else set()
-    names = [c.label for c in diag.candidates][::-1]
+    # a candidate whose gain the model without it reaches too (at the candidate fit's values) is not the effect's
+    names = [c.label + (" (fit, not effect)" if c.fit_only else "") for c in diag.candidates][::-1]
     red = [c.reduction for c in diag.candidates][::-1]
-    ax.barh(names, red, color=["C2" if n in added else "C0" for n in names])
+    only = [c.fit_only for c in diag.candidates][::-1]
+    ax.barh(names, red, color=["C2" if n in added else ("0.75" if o else "C0") for n, o in zip(names, only)])
     if diag.sequence and diag.final is not None:
         total = (diag.base.rms(primary) - diag.final.rms(primary)) / max(diag.base.rms(primary) - diag.floor, 1e-300)
         ax.axvline(total, color="C2", ls="--", label=f"added together: {total:.0%}")
     ax.axvline(MIN_STEP, color="k", ls=":", label="a step needs (of the excess left)")
     ax.set_xlabel("share of excess error removed on held-out windows (alone)")
-    ax.set_xlim(min(-0.2, min(red) if red else 0), 1.1)
-    ax.set_title("which effect is missing? (step 1's fitted candidates; green: added)")
+    lo = max(min(-0.2, min(red) if red else 0.0), -1.0)  # a candidate far worse than the model: off scale, said
+    ax.set_xlim(lo, 1.1)
+    for i, r in enumerate(red):
+        if r < lo:
+            ax.annotate(f"{r:.1f} (off scale)", (lo, i), xytext=(4, 0), textcoords="offset points", va="center",
+                        fontsize=8)
+    ax.set_title("which effect is missing? (step 1's fitted candidates; green: added; grey: the model\n"
+                 "without it does as well at that fit's values)", fontsize=10)
     ax.legend(fontsize=8)
     # evidence: the held-out window where the base model is worst, base vs best candidate
     ax = fig.add_subplot(gs[0, 1:])
@@ -170,7 +178,8 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
         if bf is not None:
             vel = bf.problem.fit_starts(bf.values, w, max_iter=25).start_values
             sc = bf.problem.shoot(bf.values, w, vel)
-            label = " + ".join(s.label for s in diag.sequence) if diag.final is not None else diag.candidates[0].label
+            label = (" + ".join(s.label for s in diag.sequence) if diag.final is not None
+                     else diag.candidates[0].label + " (best candidate, not taken)")
             ax.plot(t, sc.pred[primary][0], "C2-", label=f"+ {label}")
         ax.set_xlabel("t [s]")
         ax.set_ylabel(f"{primary} [{unit}]")
