@@ -391,3 +391,18 @@ def test_written_files_get_normal_permissions(tmp_path):
     path = tmp_path / "run.csv"
     write_csv(make_recording(), path)
     assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_a_binary_file_named_csv_is_one_error_not_a_traceback(tmp_path):
+    """An HDF5 (or MAT) file renamed .csv: the reader used to end in a UnicodeDecodeError traceback in `daq import`,
+    `compare` and `diagnose` (issue 16); a NUL byte in a text cell is a bad number like any other."""
+    path = tmp_path / "run.csv"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(range(256)) * 4)
+    with pytest.raises(InputError) as info:
+        read_csv(path)
+    expect_error(info.value, str(path), "(byte 0)", "not a UTF-8 text file", "binary")
+    nul = tmp_path / "nul.csv"
+    nul.write_bytes(b"t,x1\n0,1\n0.1,\x002\n")
+    with pytest.raises(InputError) as info:
+        read_csv(nul)
+    expect_error(info.value, str(nul), "x1 (line 3)", "not a number")

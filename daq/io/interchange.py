@@ -179,33 +179,42 @@ def read_csv(path: str | Path) -> Recording:
         fh = open(path, newline="", encoding="utf-8-sig")  # tolerate the BOM Excel writes
     except OSError as exc:
         raise InputError(src, "(file)", exc.strerror or str(exc)) from None
-    with fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if not header:
-            raise InputError(src, "(header)", "empty file")
-        header = [h.strip() for h in header]
-        t_unit = None
-        m = _T_HEADER.match(header[0])
-        if m is None:
-            raise InputError(src, "t", f"first column must be 't' [s], found {header[0]!r}")
-        if m.group(1) is not None:  # 't [s]': the unit is checked by the importer
-            t_unit = m.group(1).strip()
-            header[0] = "t"
-        dup = next((h for i, h in enumerate(header) if h in header[:i]), None)
-        if dup is not None:
-            raise InputError(src, dup, "duplicate column")
-        rows = []
-        for n, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            if len(row) != len(header):
-                raise InputError(src, f"line {n}", f"{len(row)} fields, header has {len(header)}")
-            try:
-                rows.append([float(x) for x in row])
-            except ValueError:
-                bad = next(i for i, x in enumerate(row) if not _isfloat(x))
-                raise InputError(src, f"{header[bad]} (line {n})", f"not a number: {row[bad]!r}") from None
+    try:
+        with fh:
+            return _parse_csv(src, csv.reader(fh))
+    except UnicodeDecodeError as exc:  # a binary file (an HDF5, a MAT file) named .csv
+        raise InputError(src, f"(byte {exc.start})", "not a UTF-8 text file; is it a binary file named .csv?") from None
+    except csv.Error as exc:  # e.g. a NUL byte
+        raise InputError(src, "(file)", f"not a CSV text file: {exc}") from None
+
+
+def _parse_csv(src: str, reader) -> Recording:
+    """An interchange CSV from its rows (read_csv opens the file and turns decoding errors into InputError)."""
+    header = next(reader, None)
+    if not header:
+        raise InputError(src, "(header)", "empty file")
+    header = [h.strip() for h in header]
+    t_unit = None
+    m = _T_HEADER.match(header[0])
+    if m is None:
+        raise InputError(src, "t", f"first column must be 't' [s], found {header[0]!r}")
+    if m.group(1) is not None:  # 't [s]': the unit is checked by the importer
+        t_unit = m.group(1).strip()
+        header[0] = "t"
+    dup = next((h for i, h in enumerate(header) if h in header[:i]), None)
+    if dup is not None:
+        raise InputError(src, dup, "duplicate column")
+    rows = []
+    for n, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != len(header):
+            raise InputError(src, f"line {n}", f"{len(row)} fields, header has {len(header)}")
+        try:
+            rows.append([float(x) for x in row])
+        except ValueError:
+            bad = next(i for i, x in enumerate(row) if not _isfloat(x))
+            raise InputError(src, f"{header[bad]} (line {n})", f"not a number: {row[bad]!r}") from None
     data = np.asarray(rows, dtype=float).reshape(-1, len(header))
     if data.shape[0] < 2 or not np.all(np.isfinite(data[:, 0])) or not np.all(np.diff(data[:, 0]) > 0):
         raise InputError(src, "t", "need at least two rows with strictly increasing t")
