@@ -80,6 +80,10 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     r = daq("compare", "d.csv", "--model", "ok.toml", "--report", "rep", cwd=tmp_path)
     assert r.returncode == 2 and "d.csv: vb: missing column" in r.stderr
     assert not (tmp_path / "rep").exists() and not (tmp_path / "daq-history.jsonl").exists()
+    for workers in ("0", "-3"):
+        r = daq("diagnose", "d.csv", "--model", "ok.toml", "--workers", workers, "--report", "rep", cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--workers" in r.stderr, r.stderr
+        assert not (tmp_path / "rep").exists()
 
 
 @pytest.mark.parametrize("rig, hidden, rate", [("drum-pendulum", "bearing-friction", 1000.0),

@@ -181,6 +181,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from daq.models.diagnose import diagnose
     from daq.models.figures import diagnose_figure
 
+    if args.workers is not None and args.workers < 1:  # checked before any work (issue 16: 0 and -3 were taken)
+        raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")
     model, s = _session(args)
     t0 = time.perf_counter()
     d = diagnose(s, model, progress=say, workers=args.workers)
