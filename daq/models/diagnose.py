@@ -164,13 +164,10 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
         return True
     values = dict(current.values)
     values.update({k: s.fitted.values[k] for k in current.model.free_names() if k in s.fitted.values})
-    hw = session.win.select(True)
-    if not hw.size:
+    if not session.win.select(True).size:
         return True
-    pr = current.problem
-    held = pr.fit_starts(values, hw, max_iter=25)
-    neutral = Fitted(current.model, values, current.fit, held, pr, pr.window_errors(values, hw, held.start_values),
-                     current.ms_fit)
+    held, ms_held = session.held_out(current.problem, values)
+    neutral = Fitted(current.model, values, current.fit, held, current.problem, ms_held, current.ms_fit)
     s.error_neutral = neutral.rms(session.primary)
     s.fit_only = not passes(score(base, neutral, s.fitted, s.cands, floor, session))
     return not s.fit_only

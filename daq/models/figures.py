@@ -145,10 +145,10 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     ax = fig.add_subplot(gs[0, 0])
     added = {c.label for step in diag.sequence for c in step.cands} if diag.found else set()
     # a candidate whose gain the model without it reaches too (at the candidate fit's values) is not the effect's
-    names = [c.label + (" (fit, not effect)" if c.fit_only else "") for c in diag.candidates][::-1]
-    red = [c.reduction for c in diag.candidates][::-1]
-    only = [c.fit_only for c in diag.candidates][::-1]
-    ax.barh(names, red, color=["C2" if n in added else ("0.75" if o else "C0") for n, o in zip(names, only)])
+    shown = diag.candidates[::-1]
+    names = [c.label + (" (fit, not effect)" if c.fit_only else "") for c in shown]
+    red = [c.reduction for c in shown]
+    ax.barh(names, red, color=["C2" if c.label in added else ("0.75" if c.fit_only else "C0") for c in shown])
     if diag.sequence and diag.final is not None:
         total = (diag.base.rms(primary) - diag.final.rms(primary)) / max(diag.base.rms(primary) - diag.floor, 1e-300)
         ax.axvline(total, color="C2", ls="--", label=f"added together: {total:.0%}")

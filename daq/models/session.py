@@ -206,11 +206,17 @@ class Session:
         e_joint = self.weighted(pr.window_errors(res.values, fw, res.start_values))
         e_again = self.weighted(pr.window_errors(res.values, fw, again.start_values))
         res.start_values = np.where((e_again < e_joint)[:, None], again.start_values, res.start_values)
-        held = pr.fit_starts(res.values, hw, max_iter=25) if hw.size else res
+        held, ms_held = self.held_out(pr, res.values) if hw.size else (res, {})
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
-        return Fitted(fitted_model, res.values, res, held, pr,
-                      pr.window_errors(res.values, hw, held.start_values) if hw.size else {},
+        return Fitted(fitted_model, res.values, res, held, pr, ms_held,
                       pr.window_errors(res.values, fw, res.start_values))
+
+    def held_out(self, pr: Problem, values: dict[str, float]) -> tuple[ShootingFit, dict[str, np.ndarray]]:
+        """A model at fixed ``values`` on the held-out windows: each window's start values fitted (parameters
+        fixed), then its mean-square errors per output: what every held-out score is made of."""
+        hw = self.win.select(True)
+        held = pr.fit_starts(values, hw, max_iter=25)
+        return held, pr.window_errors(values, hw, held.start_values)
 
     def _fit_from(self, pr: Problem, starts: list, free: list[str], bounds: dict, fw: np.ndarray,
                   max_iter: int, reweight: bool = False, converge: bool = False) -> ShootingFit:
