@@ -4,13 +4,16 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench env clean
+.PHONY: demo test bench env clean system-packages
 
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
-test: $(VENV)/.installed
+test: $(VENV)/.installed system-packages
 	$(BIN)/python -m pytest
+
+system-packages:  # old HDF5 readers (Octave, h5dump) for tests/test_old_readers.py; installs only what is missing
+	bash deploy/system-packages.sh
 
 bench: $(VENV)/.installed
 	$(BIN)/daq bench sim

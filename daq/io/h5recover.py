@@ -1,17 +1,20 @@
 """Make an HDF5 file left behind by a killed writer (kill -9, power cut) openable again.
 
-Why: HDF5 ≥ 1.10 files written with ``libver="latest"`` carry "file is open for write"
-flags in the superblock; a writer that dies never clears them, and a plain open then
-refuses the file ("file is already open for write ... h5clear"). The recorder writes in
-SWMR mode, so everything up to its last flush is consistent on disk: only the flags are
-stale. ``recover`` clears them in place, as ``h5clear -s`` does, without the HDF5 tools.
+Why: HDF5 ≥ 1.10 files in the 1.10 format or later (superblock version 3: the run files,
+written with library-version bounds ("v110", "v110"), as SWMR needs) carry "file is open for
+write" flags in the superblock; a writer that dies never clears them, and a plain open then
+refuses the file ("file is already open for write ... h5clear"), in h5py as in Octave or MATLAB.
+The recorder writes in SWMR mode, so everything up to its last flush is consistent on disk:
+only the flags are stale. ``recover`` clears them in place, as ``h5clear -s`` does, without the
+HDF5 tools; it rewrites nothing else, so the file keeps the format it was written in (readable
+by HDF5 1.10 readers: tests/test_old_readers.py).
 
 Superblock versions 2 and 3 (the only ones with these flags):
     signature (8) | version (1) | size of offsets O (1) | size of lengths (1) | flags (1) |
     base address (O) | extension address (O) | end-of-file address (O) | root object header (O) |
     checksum (4, Jenkins lookup3 of everything before it)
 
-Decision record: docs/decisions/0004-swmr-hdf5-periodic-flush.md.
+Decision records: docs/decisions/0004-swmr-hdf5-periodic-flush.md, docs/decisions/0018-hdf5-for-old-readers.md.
 """
 
 from __future__ import annotations

@@ -22,6 +22,10 @@ Run (``format = "friction-daq run 1"``, written live by ``daq.streaming.recorder
 ``read_h5`` puts every stream's channels on the fastest stream's time base (others
 interpolated linearly, NaN outside their span and across their gaps), with ``t`` counted
 from ``start_host_time``; a file left unclean by a killed recorder opens without any step.
+
+Both are written with library-version bounds that stop at the HDF5 1.10 format (LIBVER_RUN,
+LIBVER_SIMPLE), so HDF5 1.10 readers (Octave 7, many MATLAB releases) decode every object:
+docs/decisions/0018-hdf5-for-old-readers.md.
 """
 
 from __future__ import annotations
@@ -44,7 +48,14 @@ FORMAT_RUN = "friction-daq run 1"
 STREAM_RESERVED = ("t", "device_t")  # dataset names in a stream group that are not channels
 GAP_PERIODS = 5.0  # a slower stream is not interpolated across holes longer than this many sample periods
 
-EVENT_STR = h5py.string_dtype("utf-8")
+# Library-version bounds of every file we write (decision 18): nothing newer than the HDF5 1.10 format. Under
+# libver="latest" the HDF5 2.0 in h5py stamps a compound datatype (the /events table) with datatype message version 5,
+# which HDF5 1.10 cannot decode ("bad version number for datatype message"); under these bounds it is version 3. Run
+# files need the 1.10 format itself (SWMR: superblock version 3); simple files keep the oldest format that holds them.
+LIBVER_RUN = ("v110", "v110")
+LIBVER_SIMPLE = ("earliest", "v110")
+
+EVENT_STR = h5py.string_dtype("utf-8")  # variable-length UTF-8: HDF5 1.10 reads it (the bounds were the problem)
 EVENT_DTYPE = np.dtype([("host_time", "f8"), ("kind", EVENT_STR), ("source", EVENT_STR), ("detail", EVENT_STR),
                         ("count", "i8"), ("gap_s", "f8")])
 EVENT_FIELDS = ("host_time", "kind", "source", "detail", "count", "gap_s")
@@ -139,7 +150,7 @@ def _attr(v: object) -> object:
 def write_h5(rec: Recording, path: str | Path) -> None:
     _check_shapes(rec)
     with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as f:
+        with h5py.File(tmp, "w", libver=LIBVER_SIMPLE) as f:
             if rec.rig:
                 f.attrs["rig"] = rec.rig
             for k, v in rec.meta.items():

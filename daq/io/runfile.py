@@ -16,6 +16,7 @@ The recorder process (daq/streaming/recorder.py) feeds it from the bus; ``daq im
 (daq/io/importer.py) writes imported files through it too, so both make the same file.
 
 Decision record: docs/decisions/0004-swmr-hdf5-periodic-flush.md.
+Library-version bounds (the 1.10 format, nothing newer, for old readers): docs/decisions/0018-hdf5-for-old-readers.md.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from daq import __version__
 from daq.config import RigConfig, config_text
 from daq.errors import DaqError
-from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, STREAM_RESERVED
+from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, LIBVER_RUN, STREAM_RESERVED
 from daq.io.stream_format import Block, BusEvent, StreamMeta
 
 SOFTWARE = f"friction-daq {__version__}"
@@ -123,7 +124,7 @@ class RunWriter:
         """
         self.path = Path(path)
         self.start_host_time = time.monotonic() if start_host_time is None else float(start_host_time)
-        f = h5py.File(self.path, "w", libver="latest")
+        f = h5py.File(self.path, "w", libver=LIBVER_RUN)
         try:
             a = f.attrs
             a["format"] = FORMAT_RUN
@@ -261,7 +262,7 @@ class RunWriter:
         assert self.f is not None and self.path is not None
         self.f.flush()
         self.f.close()
-        self.f = h5py.File(self.path, "a", libver="latest", locking=False)
+        self.f = h5py.File(self.path, "a", libver=LIBVER_RUN, locking=False)
         for sink in sinks:
             self._create(sink.meta, sink.has_device_t)
         self.f.swmr_mode = True
