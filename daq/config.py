@@ -59,6 +59,15 @@ class ChannelCfg(Strict):
     lsb: float = Field(0.0, ge=0.0, description="quantisation step, channel units (0 = none)")
     offset: float = 0.0
     rate_Hz: float | None = Field(None, gt=0.0, description="instrument update rate; held between updates")
+    plausible_range: tuple[float, float] | None = Field(
+        None, description="lowest and highest value the channel can read (e.g. the sensor's full scale); a data "
+                          "file beyond it is refused (daq/io/plausible.py; default: a generous bound per unit)")
+
+    @model_validator(mode="after")
+    def _range_ordered(self) -> "ChannelCfg":
+        if self.plausible_range is not None and not self.plausible_range[0] < self.plausible_range[1]:
+            raise ValueError(f"plausible_range: lowest must be below highest, got {list(self.plausible_range)}")
+        return self
 
 
 class DriveCfg(Strict):

@@ -17,7 +17,6 @@ accelerating/decelerating kinetic branches), whose magnitude is the rig config's
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -116,7 +115,7 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
         save_model(model, out / f"model-round{rnd + 1}.toml")
         _line("4/4 " + "; ".join(f"daq model add {add_command(c)}" for c in added) + " -> refit and compare again")
     history_figure(history, out / "history.png")
-    (out / "history.jsonl").write_text("".join(json.dumps(h) + "\n" for h in history))
+    (out / "history.jsonl").write_text("".join(dumps_json(h, indent=None) + "\n" for h in history))
     first, last = rounds[0], rounds[-1]
     removed = (first["error"] - last["error"]) / max(first["error"] - first["noise_floor"], 1e-300)
     names = [n for r in rounds for n in r["diagnosed"]]

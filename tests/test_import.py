@@ -146,7 +146,7 @@ def test_belt_and_drum_required_columns(tmp_path, belt_cfg, drum_cfg):
     assert required_channels(belt_cfg) == ["x1", "vb"]  # one mass in the shipped config
     assert required_channels(drum_cfg) == ["phi", "force_a", "thrust", "accel", "vel", "drum_speed", "drum_rev", "temp"]
     k = np.arange(N, dtype=float)
-    belt = write_csv_file(tmp_path / "belt.csv", {"t": k * 0.01, "x1": k, "vb": k})
+    belt = write_csv_file(tmp_path / "belt.csv", {"t": k * 0.01, "x1": k * 1e-4, "vb": k * 1e-3})  # plausible values
     rec = read_recording(import_file(belt, "belt-ndof", tmp_path / "belt.h5"))
     assert rec.rig == "belt-ndof" and rec.units == {"x1": "m", "vb": "m/s"}
     expect_error(belt, "drum-pendulum", tmp_path / "drum.h5", "phi", "missing column required for drum-pendulum")

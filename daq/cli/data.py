@@ -14,7 +14,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     # heavy: h5py, numpy, nptdms
     from daq.io.importer import import_file
 
-    import_file(args.file, args.rig, args.output, maps=args.map, time=args.time, rate=args.rate)
+    import_file(args.file, args.rig, args.output, maps=args.map, time=args.time, rate=args.rate,
+                drop_nonfinite=args.drop_nonfinite)
     print(f"imported {args.file} -> {args.output}", file=sys.stderr)
     return 0
 
@@ -40,6 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("--map", action="append", default=[], metavar="CHANNEL=EXPR",
                      help="a channel from arithmetic over the file's variables (+ - * / ** %%, numbers, "
                           "sqrt exp log sin cos ...; names with other characters in `backticks`); repeatable")
+    imp.add_argument("--drop-nonfinite", action="store_true",
+                     help="drop rows where a rig channel is NaN or inf, each dropped span an event in the "
+                          "recording (default: refuse the file, naming the first such sample)")
     imp.add_argument("-o", "--output", required=True, help="OUT.h5")
     imp.set_defaults(func=cmd_import)
 

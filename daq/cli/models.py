@@ -94,8 +94,15 @@ def _session(args: argparse.Namespace):
     from daq.models.spec import load_model
 
     model = load_model(args.model)
+    s = Session.open(args.data, model, args.rig)  # before the first progress line: a bad file is one line
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
-    s = Session.open(args.data, model, args.rig)
+    filled = s.rec.meta.get("filled")
+    if filled:
+        by_count: dict[int, list[str]] = {}
+        for name, n in filled.items():
+            by_count.setdefault(n, []).append(name)
+        say("filled in by interpolation where the recording has no data: "
+            + "; ".join(f"{n} samples of {', '.join(names)}" for n, names in by_count.items()))
     say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
          f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
     return model, s
@@ -133,7 +140,7 @@ def _append_history(path: Path, res: dict) -> None:
     entry["time"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     entry["data"] = str(Path(res["data"]).resolve())
     with open(path, "a") as fh:
-        fh.write(json.dumps(entry) + "\n")
+        fh.write(dumps_json(entry, indent=None) + "\n")
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

@@ -56,6 +56,7 @@ def cmd_brake_run(args: argparse.Namespace) -> int:
     from daq.analysis.paper001.transitions import TransitionCfg
     from daq.io.files import atomic_path
     from daq.io.interchange import read_recording
+    from daq.io.plausible import check_recording
 
     if not Path(args.data).is_file():
         raise InputError(str(args.data), "(file)", "no such file")
@@ -66,6 +67,7 @@ def cmd_brake_run(args: argparse.Namespace) -> int:
     if rec.rig not in (None, "", "brake-2dof"):
         raise InputError(str(args.data), "rig", f"is {rec.rig!r}; brake-run analyses brake-2dof recordings")
     cfg, cfg_src = _config(args, rec)
+    check_recording(str(args.data), rec, cfg)
     print(f"analyse brake-run: {args.data} ({rec.t.size} samples, config {cfg_src})", file=sys.stderr)
     res, ctx = analyse_run(rec.t, rec.channels, cfg, str(args.data), config_source=cfg_src,
                            plane_window_s=args.window, planes=planes, diff_window_s=args.diff_window,

@@ -34,6 +34,7 @@ from daq.io.runfile import RunWriter
 
 from .expressions import Expression
 from .interchange import STREAM_RESERVED, atomic_path, read_csv, read_recording, write_csv
+from .plausible import check_values
 from .sources import SourceFile, open_tdms, read_source, split_header
 from .stream_format import BusEvent, StreamMeta, make_block
 
@@ -164,8 +165,9 @@ def validate(table: Table, cfg: RigConfig) -> tuple[list[str], list[str]]:
         raise InputError(src, missing[0], f"missing column required for {cfg.rig} (needs {need})")
     channels, units = [], []
     for name, (_, unit) in table.columns.items():
-        if not name or "/" in name or name in (".", "..") or name in STREAM_RESERVED:
-            raise InputError(src, name or "(empty)", "column name cannot be stored as a channel")
+        if not channel_name_ok(name):
+            field = (name if name.isprintable() else repr(name)) if name else "(empty)"
+            raise InputError(src, field, "column name cannot be stored as a channel")
         spec = cfg.channels.get(name)
         if spec is not None and not is_si(unit, spec.unit):
             raise InputError(src, name, f"unit {unit!r} is not the SI unit {spec.unit!r} of the interchange "
@@ -176,7 +178,9 @@ def validate(table: Table, cfg: RigConfig) -> tuple[list[str], list[str]]:
 
 
 def channel_name_ok(name: str) -> bool:
-    return bool(name) and "/" not in name and name not in (".", "..", "t") and name not in STREAM_RESERVED
+    """A name HDF5 stores as a dataset name (no '/', no NUL or other control character) and not reserved."""
+    return (bool(name) and name.isprintable() and "/" not in name and name not in (".", "..", "t")
+            and name not in STREAM_RESERVED)
 
 
 def parse_maps(maps: list[str], src: SourceFile) -> dict[str, Expression]:
@@ -246,7 +250,9 @@ def mapped_table(src: SourceFile, cfg: RigConfig, maps: list[str], time: str | N
         store = name.replace("/", ".")
         if store in table.columns or not channel_name_ok(store):
             store = f"file.{store}"
-        if store not in table.columns:
+        if not store.isprintable():
+            src.skipped[name] = "name has a control character"
+        elif store not in table.columns:
             table.columns[store] = (values, src.units.get(name))
             kept.append(name)
     attrs = {"import_time": how, "import_map": json.dumps({c: e.text for c, e in exprs.items()}),
@@ -258,11 +264,13 @@ def mapped_table(src: SourceFile, cfg: RigConfig, maps: list[str], time: str | N
 
 
 def import_file(path: str | Path, rig: str | Path, out: str | Path, maps: list[str] | None = None,
-                time: str | None = None, rate: float | None = None) -> Path:
+                time: str | None = None, rate: float | None = None, drop_nonfinite: bool = False) -> Path:
     """Import a file for ``rig`` into a run HDF5 file at ``out``; nothing is written on error.
 
     An interchange CSV or a TDMS with the interchange's names needs no options; any other file (or any
-    file given ``maps``, ``time`` or ``rate``) goes through the mapping."""
+    file given ``maps``, ``time`` or ``rate``) goes through the mapping. The rig's channels must hold
+    plausible, finite samples (daq/io/plausible.py); ``drop_nonfinite`` drops the rows where one does
+    not, and each dropped span becomes a ``dropped`` event in the recording."""
 
     out = Path(out)
     if out.suffix.lower() not in (".h5", ".hdf5"):
@@ -277,6 +285,13 @@ def import_file(path: str | Path, rig: str | Path, out: str | Path, maps: list[s
         table, extra = read_table(path), {}
         kind = table.kind
     channels, units = validate(table, cfg)
+    keep, dropped = check_values(table.source, table.t, {c: table.columns[c][0] for c in channels}, cfg,
+                                 drop_nonfinite=drop_nonfinite)
+    if dropped:
+        if keep.sum() < 2:
+            raise InputError(table.source, "--drop-nonfinite", f"fewer than two rows left ({int(keep.sum())})")
+        table = Table(table.source, table.kind, table.t[keep], table.t_unit,
+                      {c: (x[keep], u) for c, (x, u) in table.columns.items()}, table.attrs)
     dt = float(np.median(np.diff(table.t)))
     meta = StreamMeta(stream=IMPORT_STREAM, channels=tuple(channels), units=tuple(units), rig=cfg.rig,
                       source=Path(path).name, rate_hz=1.0 / dt)
@@ -288,6 +303,9 @@ def import_file(path: str | Path, rig: str | Path, out: str | Path, maps: list[s
         try:
             w.event(BusEvent(kind="import", source="importer", host_time=float(table.t[0]),
                              detail=f"{kind} file {path}: {len(channels)} channels, {table.t.size} samples"))
+            for d in dropped:
+                w.event(BusEvent(kind="dropped", source="importer", host_time=d.t_start, detail=d.detail(),
+                                 count=d.stop - d.start, gap_s=d.t_stop - d.t_start))
             w.append(block)
         finally:
             w.close()

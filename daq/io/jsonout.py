@@ -7,6 +7,7 @@ Light on purpose (no numpy import): the command line prints ``--json`` through i
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,8 +22,24 @@ def json_default(o: Any) -> Any:
     return str(o)
 
 
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every non-finite float as None: JSON has no NaN or Infinity (Python writes them, and
+    strict readers - browsers, jq, other languages - refuse the file; issue 16 found ``"error": Infinity``
+    in daq-history.jsonl). numpy values become plain ones on the way."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return finite_json(obj.tolist())
+    return obj
+
+
 def dumps_json(obj: Any, indent: int | None = 2) -> str:
-    return json.dumps(obj, indent=indent, default=json_default)
+    """Standard JSON (non-finite numbers as null), numpy values as plain numbers."""
+    return json.dumps(finite_json(obj), indent=indent, default=json_default, allow_nan=False)
 
 
 def print_json(obj: Any) -> None:

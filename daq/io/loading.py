@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from daq.config import load_rig
+from daq.config import RigConfig, config_for_recording, load_rig
 from daq.errors import InputError
 from daq.io.importer import read_table, validate
 from daq.io.interchange import Recording, read_recording
+from daq.io.plausible import check_recording
 
 # the channels a rig's model reads (and must find in a data file), and those it uses when present
 MODEL_CHANNELS = {
@@ -24,21 +25,33 @@ MODEL_CHANNELS = {
     "belt-ndof": ("x1", "vb"),
 }
 OPTIONAL_CHANNELS = ("vb_set", "temp")
+GAP_PERIODS_FILLED = 1.5  # real samples farther apart than this many periods leave a hole that is filled in
 
 
-def load_data(path: str | Path, rig: str | None) -> Recording:
-    """A recording (HDF5) or an interchange CSV/TDMS file; irregular host timestamps are resampled."""
+def load_data(path: str | Path, rig: str | None, cfg: RigConfig | None = None) -> Recording:
+    """A recording (HDF5) or an interchange CSV/TDMS file; irregular host timestamps are resampled.
+
+    The rig's channels are checked against daq/io/plausible.py (``cfg``: the config the analysis uses;
+    by default ``rig``'s, or the one a recording carries): a CSV/TDMS sample that is not finite, or any
+    sample far outside the channel's range, is one InputError naming file, channel and sample. In a
+    recording NaN marks where a stream had no data (before it started, across a gap): those samples are
+    interpolated and counted in ``meta["filled"]``, which the commands report."""
     p = Path(path)
     if p.suffix.lower() in (".h5", ".hdf5"):
         rec = read_recording(p)
+        if cfg is None and rec.rig is not None:
+            cfg = config_for_recording(rec.meta.get("rig_config"), str(p), rig if rig and Path(rig).suffix else None,
+                                       rec.rig, "this is")
+        if cfg is not None:
+            check_recording(str(p), rec, cfg)
     elif p.suffix.lower() in (".csv", ".tdms"):
-
         if rig is None:
             raise InputError(str(p), "--rig", "a CSV/TDMS file does not say which rig it is from: give --rig")
-        cfg = load_rig(rig)
+        cfg = cfg or load_rig(rig)
         table = read_table(p)
         channels, units = validate(table, cfg)
         rec = Recording(cfg.rig, table.t, {c: table.columns[c][0] for c in channels}, dict(zip(channels, units)))
+        check_recording(str(p), rec, cfg)
     else:
         raise InputError(str(p), "(file)", "unsupported format (use .h5, .csv or .tdms)")
     if rig is not None and rec.rig is not None and rec.rig != rig and not Path(rig).suffix:
@@ -73,8 +86,20 @@ def uniform(rec: Recording, source: str) -> Recording:
     t = t[keep]
     tu = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * rate)) + 1) / rate
     out = {}
+    filled: dict[str, int] = {}
     for k, v in ch.items():
         v = v[keep]
         ok = np.isfinite(v)
         out[k] = np.interp(tu, t[ok], v[ok]) if ok.sum() >= 2 else np.full(tu.size, np.nan)
-    return Recording(rec.rig, tu, out, rec.units, {**rec.meta, "resampled_Hz": rate}, {})
+        if k in need and ok.sum() >= 2:  # grid points inside a hole of this channel's real samples
+            real = t[ok]
+            nxt = np.clip(np.searchsorted(real, tu, side="right"), 1, real.size - 1)
+            hole = real[nxt] - real[nxt - 1] > GAP_PERIODS_FILLED / rate
+            inside = (tu - real[nxt - 1] > 0.25 / rate) & (real[nxt] - tu > 0.25 / rate)
+            n = int(np.sum(hole & inside))
+            if n:
+                filled[k] = n
+    meta = {**rec.meta, "resampled_Hz": rate}
+    if filled:
+        meta["filled"] = filled
+    return Recording(rec.rig, tu, out, rec.units, meta, {})

@@ -82,6 +82,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     idx, res = residual_samples(session, fitted)
     out: dict = {
         "data": session.source,
+        "filled_samples": session.rec.meta.get("filled", {}),
         "model": fitted.model.describe(),
         "model_digest": fitted.model.digest(),
         "error": fitted.rms(primary, "held"),

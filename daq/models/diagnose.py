@@ -322,6 +322,7 @@ class Diagnosis:
         flagged = session.win.transient if session.win.transient is not None else np.zeros(session.win.starts.size, bool)
         return {
             "data": session.source,
+            "filled_samples": session.rec.meta.get("filled", {}),
             "model": self.base.model.describe(),
             "error": e0,
             "error_unit": unit,

@@ -90,8 +90,9 @@ class Session:
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
         if rig is not None and rig != model.rig:
             raise InputError(str(data), "--rig", f"the model is for {model.rig}, not {rig}")
-        rec = load_data(data, model.rig)
-        return cls(rec, str(data), rig_config_for(model), **kw)
+        cfg = rig_config_for(model)
+        rec = load_data(data, model.rig, cfg)
+        return cls(rec, str(data), cfg, **kw)
 
     @property
     def primary(self) -> str:

@@ -205,7 +205,15 @@ def check_model(model: Model, source: str) -> None:
 
 
 def rig_config_for(model: Model, source: str = "model") -> RigConfig:
-    cfg = load_rig(model.rig_config or model.rig)
+    """The config of the model's rig (its ``rig_config`` file, else the built-in rig); an unknown rig or an
+    unreadable/invalid rig file is one InputError naming the model file first, then the rig's problem."""
+    name = model.rig_config or model.rig
+    try:
+        cfg = load_rig(name)
+    except InputError as exc:
+        field = "rig_config" if model.rig_config else "rig"
+        said = f"{name!r}: {exc.message}" if exc.source == str(name) and exc.field in ("rig", "(file)") else str(exc)
+        raise InputError(source, field, said) from None
     if cfg.rig != model.rig:
         raise InputError(source, "rig_config", f"is a {cfg.rig} config, the model is for {model.rig}")
     return cfg

@@ -28,6 +28,7 @@ from scipy.signal import savgol_coeffs
 from daq.config import BeltRig, config_for_recording
 from daq.errors import InputError
 from daq.io.interchange import Recording
+from daq.io.plausible import check_values
 from daq.signals import noise_sigma, savgol
 
 RIG = "belt-ndof"
@@ -113,9 +114,7 @@ def prepare(rec: Recording, source: str, rig: str | None = None, damping: float 
     rate = 1.0 / float(np.median(dt))
     if np.max(np.abs(dt * rate - 1.0)) > 0.01:
         raise InputError(source, "t", "samples must be evenly spaced (resample first)")
-    for name in masses + [c for c in ("vb", "vb_set") if c in rec.channels]:
-        if not np.all(np.isfinite(rec.channels[name])):
-            raise InputError(source, name, "contains NaN or infinite values")
+    check_values(source, t, rec.channels, cfg)  # non-finite or far outside the channel's range: one error
     x = np.vstack([np.asarray(rec.channels[m], dtype=float) for m in masses])
     if "vb_set" in rec.channels:
         vb, vsrc = np.asarray(rec.channels["vb_set"], dtype=float), "vb_set (command)"
