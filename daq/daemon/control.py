@@ -11,7 +11,13 @@ from the message body.
 
 Messages are one JSON object per frame (``Request`` in, ``Reply`` out). A malformed
 request gets an error reply naming the bad field; neither it nor a handler exception
-stops the server.
+stops the server. Every request that reaches the server gets exactly one reply whose
+``code`` says whose problem it is (the table in docs/daemon.md): a request larger than
+``ControlCfg.max_request_bytes`` is refused as ``malformed`` without being parsed, so the
+limit protects memory and still answers the client. libzmq itself drops (unanswered) a
+connection that sends a frame larger than ``HARD_CAP_FACTOR`` times that limit; the
+factor leaves room to answer near misses while a client streaming a gigabyte is cut off
+after the frame header.
 
 Decision record: docs/decisions/0014-safety-in-the-regulator.md.
 """
@@ -20,16 +26,28 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import logging
+import math
+import os
+import re
 import threading
 import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import zmq
 import zmq.auth
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from zmq.auth.thread import ThreadAuthenticator
 
 from daq.errors import InputError
@@ -37,16 +55,62 @@ from daq.errors import InputError
 Op = Literal["status", "ramp", "stop", "estop", "record_start", "record_stop", "note"]
 READ_ONLY_OPS: frozenset[str] = frozenset({"status"})
 FORBIDDEN = "forbidden: observers may only read status"
-MAX_MSG_BYTES = 1 << 20  # a control request is small; refuse anything that could exhaust memory
+MAX_MSG_BYTES = 1 << 20  # default request limit: a control request is small; refuse anything that could exhaust memory
+HARD_CAP_FACTOR = 4  # libzmq's MAXMSGSIZE = this x the limit: larger frames drop the connection, unanswered
+RCVHWM = 32  # queued requests per connection; with the hard cap this bounds what one client can make us hold
 POLL_MS = 100  # how often the server thread checks for stop()
+MAX_ERROR_CHARS = 1000  # an error text is for a person: one line, bounded even for a hostile request
+MAX_LISTED_ERRORS = 5  # validation problems named in one reply (a request with 10^5 bad keys gets a short one)
+MAX_LOC_CHARS = 64  # a field name quoted back from the request is clipped to this
+FINITE = "must be a finite number"
+# the request's own id, for a reply to a request too large to parse: first key, or last key of the top-level object
+_ID_FIRST = re.compile(rb'\A\s*\{\s*"id"\s*:\s*"([\x20-\x21\x23-\x5b\x5d-\x7e]{1,128})"')
+_ID_LAST = re.compile(rb'"id"\s*:\s*"([\x20-\x21\x23-\x5b\x5d-\x7e]{1,128})"\s*\}\s*\Z')
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
+
+log = logging.getLogger(__name__)
 
 Handler = Callable[[dict], dict]
+
+
+def _accepts(annotation: Any, kinds: tuple[type, ...]) -> bool:
+    """True if a field's type is one of ``kinds`` or a union containing one (``float | None``)."""
+    return annotation in kinds or any(a in kinds for a in get_args(annotation))
 
 
 class _Args(BaseModel):
     """Base for per-op arguments: strict types, no unknown keys (a typo must not be ignored)."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _finite(cls, v: Any, info: ValidationInfo) -> Any:
+        """Every numeric arg must be finite, with a message that says so.
+
+        Why here, for all fields: JSON as Python parses it allows ``NaN``/``Infinity`` (and
+        ``1e999``), NaN fails every comparison, so a bound like ``le=1`` reported NaN as "should
+        be less than or equal to 1" and a field without bounds would let it through to the
+        motor. A huge integer for a float field is the same mistake (it has no float value).
+        """
+        field = cls.model_fields.get(info.field_name or "")
+        if field is None or isinstance(v, bool) or not _accepts(field.annotation, (float, int)):
+            return v
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(FINITE)
+        if isinstance(v, int) and _accepts(field.annotation, (float,)):
+            try:
+                float(v)
+            except OverflowError:
+                raise ValueError(FINITE) from None
+        return v
+
+
+def _path_text(v: str | None) -> str | None:
+    """A file name with a NUL can never be opened; say so here rather than as a handler's ValueError."""
+    if v is not None and "\x00" in v:
+        raise ValueError("must not contain a NUL character")
+    return v
 
 
 class NoArgs(_Args):
@@ -56,6 +120,8 @@ class NoArgs(_Args):
 class RampArgs(_Args):
     file: str = Field(min_length=1, description="ramp definition file to run")
     time_scale: float = Field(1.0, gt=0, le=1, description="slow a ramp down, never speed it up")
+
+    _file_ok = field_validator("file")(_path_text)
 
 
 class NoteArgs(_Args):
@@ -72,6 +138,8 @@ class NoteArgs(_Args):
 
 class RecordStartArgs(_Args):
     path: str | None = Field(None, min_length=1, description="output file; the recorder picks one if absent")
+
+    _path_ok = field_validator("path")(_path_text)
 
 
 ARGS_MODELS: dict[str, type[_Args]] = {
@@ -116,6 +184,9 @@ class ControlCfg(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     endpoint: str = Field("tcp://127.0.0.1:5570", description="where the server binds; loopback unless CURVE")
+    max_request_bytes: int = Field(
+        MAX_MSG_BYTES, ge=1024, le=1 << 28,
+        description=f"larger requests get a 'malformed' reply unparsed; beyond {HARD_CAP_FACTOR}x this, no reply")
     server_secret_file: Path | None = Field(None, description="server key pair (*.key_secret); enables CURVE")
     operators_dir: Path | None = Field(None, description="public keys (*.key) of clients allowed to command")
     observers_dir: Path | None = Field(None, description="public keys (*.key) of clients allowed to read status")
@@ -134,15 +205,114 @@ class ControlCfg(BaseModel):
     def curve(self) -> bool:
         return self.server_secret_file is not None
 
+    @property
+    def hard_cap_bytes(self) -> int:
+        """libzmq's MAXMSGSIZE: a frame above this drops the connection before it is buffered."""
+        return self.max_request_bytes * HARD_CAP_FACTOR
+
+
+def _one_line(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """An error text as one bounded line: a multi-line exception text must not read like a traceback."""
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
 
 def _describe(exc: ValidationError, prefix: str = "") -> str:
-    """Turn a pydantic error into 'field: problem' lines a client can act on."""
+    """Turn a pydantic error into 'field: problem' lines a client can act on (the first few, clipped)."""
+    errors = exc.errors(include_url=False)
     parts = []
-    for err in exc.errors(include_url=False):
-        loc = ".".join(str(p) for p in ((prefix,) if prefix else ()) + tuple(err["loc"]))
+    for err in errors[:MAX_LISTED_ERRORS]:
+        loc = ".".join(_one_line(str(p), MAX_LOC_CHARS) for p in ((prefix,) if prefix else ()) + tuple(err["loc"]))
         msg = err["msg"].removeprefix("Value error, ")
         parts.append(f"{loc}: {msg}" if loc else msg)
-    return "; ".join(parts)
+    if len(errors) > MAX_LISTED_ERRORS:
+        parts.append(f"and {len(errors) - MAX_LISTED_ERRORS} more")
+    return _one_line("; ".join(parts))
+
+
+class _Malformed(Exception):
+    """A request that is not a JSON object; the message says why, for the reply."""
+
+
+def _decode(raw: bytes) -> Any:
+    """Parse one request frame as UTF-8 JSON; raises _Malformed with a client-facing reason.
+
+    Why so careful: ``json.loads(bytes)`` guesses UTF-16/32 from NUL bytes, raises
+    RecursionError on deep nesting and a bare ValueError for a number of more than 4300
+    digits; each of those must be the client's ``malformed``, not the server's ``internal``.
+    """
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _Malformed(f"not JSON (not UTF-8: byte {exc.start} is {raw[exc.start:exc.start + 1]!r})") from None
+    try:
+        data = json.loads(text)
+    except RecursionError:
+        raise _Malformed("not JSON (nested too deep)") from None
+    except json.JSONDecodeError as exc:
+        raise _Malformed(f"not JSON ({exc})") from None
+    except ValueError as exc:  # the int digits limit (CVE-2020-10735): "Exceeds the limit (4300 digits) ..."
+        raise _Malformed(f"not JSON (number too long: {str(exc).split(';')[0]})") from None
+    if _SURROGATE_ESCAPE.search(text) and _has_lone_surrogate(data):  # the walk only if an escape could be one
+        raise _Malformed("not JSON (a \\u escape is a lone UTF-16 surrogate, not a character)")
+    return data
+
+
+def _has_lone_surrogate(data: Any) -> bool:
+    """True if a string (key or value) holds an unpaired surrogate, which no reply could encode as UTF-8.
+
+    Why: ``"\\ud800"`` is valid JSON syntax, but echoing it (in the id, or in a handler's
+    result) made the reply unserialisable and killed the server thread. Iterative, so it is
+    safe at any depth the parser accepted.
+    """
+    stack = [data]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            try:
+                item.encode("utf-8")
+            except UnicodeEncodeError:
+                return True
+        elif isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return False
+
+
+def _peek_id(raw: bytes) -> str:
+    """Best-effort request id of a frame too large to parse, so the client can match the refusal.
+
+    Only an ``"id"`` that is the first key, or the last key of the top-level object (where
+    ``json.dumps({"op", "args", "id"})`` puts it), is taken; anything else gives "".
+    """
+    m = _ID_FIRST.match(raw[:256]) or _ID_LAST.search(raw[-256:])
+    return m.group(1).decode("ascii") if m else ""
+
+
+def _path_field(args: dict[str, Any], filename: str) -> str:
+    """The request arg naming ``filename`` (or a file below it, e.g. a missing directory), else '(file)'."""
+    target = Path(filename)
+    for key, value in args.items():
+        if isinstance(value, str) and value:
+            p = Path(value)
+            if any(target == c or target in c.parents for c in (p, p.absolute())):
+                return key
+    return "(file)"
+
+
+def _split_frames(frames: list[Any]) -> tuple[list[Any], list[Any]]:
+    """Routing envelope and request body of one ROUTER message.
+
+    Why: a DEALER sends ``[body]``, a REQ ``["", body]`` (ROUTER prepends the peer id), a
+    proxy may add more. Everything up to the last empty frame before the final one is
+    envelope, echoed back so each kind of client gets its reply; the rest must be one frame.
+    """
+    for i in range(len(frames) - 2, 0, -1):
+        if len(frames[i]) == 0:
+            return frames[: i + 1], frames[i + 1:]
+    return frames[:1], frames[1:]
 
 
 def is_local_endpoint(endpoint: str) -> bool:
@@ -210,7 +380,9 @@ class ControlServer:
         try:
             sock = self._ctx.socket(zmq.ROUTER)
             sock.setsockopt(zmq.LINGER, 200)
-            sock.setsockopt(zmq.MAXMSGSIZE, MAX_MSG_BYTES)
+            # above the request limit, so a too-large request still reaches handle() and is answered
+            sock.setsockopt(zmq.MAXMSGSIZE, self.cfg.hard_cap_bytes)
+            sock.setsockopt(zmq.RCVHWM, RCVHWM)
             if self.cfg.curve:
                 self._operators = _load_keys(self.cfg.operators_dir)
                 self._observers = _load_keys(self.cfg.observers_dir)
@@ -293,26 +465,50 @@ class ControlServer:
                 continue
             if len(frames) < 2:
                 continue
-            envelope, payload = [f.bytes for f in frames[:-1]], frames[-1]
+            envelope, body = _split_frames(frames)
             try:
-                user_id = payload.get("User-Id") if self.cfg.curve else None
-            except zmq.ZMQError:
-                user_id = None
-            reply = self.handle(payload.bytes, self.role_of(user_id))
+                out = self._answer(body).model_dump_json().encode()
+            except Exception:  # handle() never raises and its replies serialise; this is the last line
+                log.exception("control request")
+                out = Reply(id="", ok=False, error="internal error: see the daemon log", code="internal") \
+                    .model_dump_json().encode()
             try:
-                sock.send_multipart(envelope + [reply.model_dump_json().encode()])
+                sock.send_multipart([f.bytes for f in envelope] + [out])
             except zmq.ZMQError:
                 pass  # the client went away; nothing to tell it
 
+    def _answer(self, body: list[zmq.Frame]) -> Reply:
+        """The reply to one request body (normally one frame), with the client's role from CURVE."""
+        if len(body) != 1:
+            self.requests += 1
+            return self._fail("", f"malformed request: expected one JSON frame, got {len(body)} frames", "malformed")
+        payload = body[0]
+        try:
+            user_id = payload.get("User-Id") if self.cfg.curve else None
+        except zmq.ZMQError:
+            user_id = None
+        return self.handle(payload.bytes, self.role_of(user_id))
+
     def handle(self, raw: bytes, role: Literal["operator", "observer"] | None) -> Reply:
-        """Turn one raw request into a reply; never raises."""
+        """Turn one raw request into a reply that serialises; never raises.
+
+        Codes: ``malformed`` (the request itself: size, encoding, JSON, fields), ``forbidden``
+        (role), ``input`` (a handler's InputError, or an OSError naming a file: ``FILE: FIELD:
+        message``), ``failed`` (any other handler exception, or no handler; the text names the
+        op), ``internal`` (a bug here or a handler result that is not a JSON object).
+        """
         self.requests += 1
         rid = ""
+        op = "request"
         try:
+            limit = self.cfg.max_request_bytes
+            if len(raw) > limit:  # refused unparsed: the limit is there to bound the work a request can cause
+                return self._fail(_peek_id(raw), f"malformed request: size: {len(raw)} bytes is too large "
+                                  f"(the limit is {limit} bytes)", "malformed")
             try:
-                data = json.loads(raw)
-            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                return self._fail(rid, f"malformed request: not JSON ({exc})", "malformed")
+                data = _decode(raw)
+            except _Malformed as exc:
+                return self._fail(rid, f"malformed request: {exc}", "malformed")
             if not isinstance(data, dict):
                 return self._fail(rid, "malformed request: expected a JSON object", "malformed")
             if isinstance(data.get("id"), str):
@@ -321,6 +517,7 @@ class ControlServer:
                 req = Request.model_validate(data)
             except ValidationError as exc:
                 return self._fail(rid, f"malformed request: {_describe(exc)}", "malformed")
+            op = req.op
             if role is None:
                 return self._fail(rid, "forbidden: unknown client key", "forbidden")
             if role != "operator" and req.op not in READ_ONLY_OPS:
@@ -331,18 +528,25 @@ class ControlServer:
             try:
                 result = handler(req.args)
             except InputError as exc:  # a bad ramp file, a bad path: one line naming file and field
-                return self._fail(rid, str(exc), "input")
+                return self._fail(rid, _one_line(str(exc)), "input")
+            except OSError as exc:
+                if exc.filename is None:  # a socket, a pipe, a timeout: the daemon's problem, not the request's
+                    return self._fail(rid, _one_line(f"{op} failed: {type(exc).__name__}: {exc}"), "failed")
+                name = os.fsdecode(exc.filename) if isinstance(exc.filename, (str, bytes)) else str(exc.filename)
+                return self._fail(rid, _one_line(f"{name}: {_path_field(req.args, name)}: {exc.strerror or exc}"),
+                                  "input")
             except Exception as exc:  # a failing command must not take the control channel down
-                return self._fail(rid, f"{req.op} failed: {type(exc).__name__}: {exc}", "failed")
+                return self._fail(rid, _one_line(f"{op} failed: {type(exc).__name__}: {exc}"), "failed")
             reply = Reply(id=rid, ok=True, result=result or {})
-            json.dumps(reply.result)  # fail here, with a reply, rather than at send time
+            reply.model_dump_json()  # fail here, with a reply, rather than at send time
             return reply
         except Exception as exc:  # e.g. a handler returned something that is not a JSON dict
-            return self._fail(rid, f"internal error: {type(exc).__name__}: {exc}", "internal")
+            return self._fail(rid, _one_line(f"internal error: {op}: {type(exc).__name__}: {exc}"), "internal")
 
     def _fail(self, rid: str, error: str, code: str = "failed") -> Reply:
+        """An error reply; a file name that is not UTF-8 (surrogate-escaped by Python) is written as ``\\udcff``."""
         self.errors += 1
-        return Reply(id=rid, ok=False, error=error, code=code)
+        return Reply(id=rid, ok=False, error=error.encode("utf-8", "backslashreplace").decode("utf-8"), code=code)
 
 
 class ControlClient:
