@@ -2,10 +2,10 @@
 
 Debian 12's ``octave`` and ``hdf5-tools`` link the system HDF5 1.10.8, the library of many MATLAB releases;
 h5py bundles HDF5 2.0. Octave's ``load`` reads numeric and fixed-length string datasets and groups, but skips
-every compound dataset other than a complex number with a warning (libinterp/corefcn/ls-hdf5.cc), so the
-/events table is read by h5dump 1.10.8 and Octave is checked to load the rest of the file and to skip only
-that table. Before the fix (libver="latest") HDF5 1.10.8 could not decode /events at all and Octave's load of
-the whole file failed.
+every compound dataset other than a complex number with a warning (libinterp/corefcn/ls-hdf5.cc): the /events
+table itself is read by h5dump 1.10.8, and Octave reads the events from /event_columns, the same table as
+one plain dataset per field, written when a file is finished (closed or recovered). Before the fix
+(libver="latest") HDF5 1.10.8 could not decode /events at all and Octave's load of the whole file failed.
 
 CI installs both tools (.ci/run); without them these tests fail, they do not skip.
 """
@@ -26,7 +26,7 @@ import pytest
 
 from daq.io import h5recover
 from daq.io.interchange import Recording, write_h5
-from daq.io.runfile import RunWriter
+from daq.io.runfile import RunWriter, recover_run
 from daq.io.stream_format import StreamMeta, make_block
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -34,18 +34,25 @@ TIMEOUT = 30.0
 FORCE = StreamMeta(stream="force", channels=("fn", "ft"), units=("N", "N"), source="test", rate_hz=1000.0)
 TEMP = StreamMeta(stream="temp", channels=("pad",), units=("degC",), source="test", rate_hz=10.0)
 
+# prints "event <kind> <source>" for every row of /event_columns (fixed-length strings: one char row each)
+OCTAVE_EVENTS = (
+    "e = s.event_columns; for i = 1:rows(e.kind), "
+    "printf('event %s %s\\n', deblank(e.kind(i, :)), deblank(e.source(i, :))); end; "
+)
 # prints "<stream> <dataset> <numel>" for every dataset of every stream, whatever the streams are called
 OCTAVE_STREAMS = (
     "s = load(getenv('DAQ_H5')); "
     "printf('top %s\\n', strjoin(sort(fieldnames(s))', ',')); "
     "for a = sort(fieldnames(s.streams))', g = s.streams.(a{1}); "
-    "for b = sort(fieldnames(g))', printf('%s %s %d\\n', a{1}, b{1}, numel(g.(b{1}))); end; end"
+    "for b = sort(fieldnames(g))', printf('%s %s %d\\n', a{1}, b{1}, numel(g.(b{1}))); end; end; "
+    + OCTAVE_EVENTS
 )
 OCTAVE_SIMPLE = (
     "s = load(getenv('DAQ_H5')); "
     "printf('top %s\\n', strjoin(sort(fieldnames(s))', ',')); "
     "printf('. t %d\\n', numel(s.t)); "
-    "for b = sort(fieldnames(s.channels))', printf('channels %s %d\\n', b{1}, numel(s.channels.(b{1}))); end"
+    "for b = sort(fieldnames(s.channels))', printf('channels %s %d\\n', b{1}, numel(s.channels.(b{1}))); end; "
+    + OCTAVE_EVENTS
 )
 SKIPPED_EVENTS = "warning: load: can't read 'events' (unknown datatype)"
 
@@ -73,8 +80,9 @@ def octave_load(h5: Path, script: str = OCTAVE_STREAMS) -> dict[tuple[str, str],
     assert stderr == [SKIPPED_EVENTS], out.stderr  # Octave skips compounds; nothing else may be missing
     lines = out.stdout.splitlines()
     top = lines[0]
-    found = {tuple(ln.split()[:2]): int(ln.split()[2]) for ln in lines[1:]}
+    found: dict = {tuple(ln.split()[:2]): int(ln.split()[2]) for ln in lines[1:] if not ln.startswith("event ")}
     found[("top", "fields")] = top.removeprefix("top ")
+    found["events"] = [tuple(ln.split()[1:3]) for ln in lines[1:] if ln.startswith("event ")]
     return found
 
 
@@ -91,7 +99,8 @@ def h5dump_events(h5: Path) -> list[tuple[str, str]]:
 def h5py_streams(h5: Path) -> dict[tuple[str, str], int]:
     with h5py.File(h5, "r") as f:
         found = {(a, b): f["streams"][a][b].shape[0] for a in f["streams"] for b in f["streams"][a]}
-        found[("top", "fields")] = "streams"  # /events is the only other root object, and Octave skips it
+        found[("top", "fields")] = "event_columns,streams"  # and /events, which Octave skips
+        found["events"] = h5py_events(h5)
         return found
 
 
@@ -169,7 +178,7 @@ def test_a_run_file_recovered_after_kill_9_opens_in_octave_and_h5dump_1_10(tmp_p
     assert h5recover.is_unclean(path)
     refused = octave("s = load(getenv('DAQ_H5'));", path)  # HDF5 1.10 refuses it too until recover()
     assert "file is already open for write" in refused.stderr, refused.stderr
-    h5recover.recover(path)
+    recover_run(path)
     expect = h5py_streams(path)
     assert expect[("force", "fn")] >= 3000  # flushed before it said 'writing'
     assert octave_load(path) == expect
@@ -186,5 +195,6 @@ def test_a_simple_recording_opens_in_octave_and_h5dump_1_10(tmp_path):
     write_h5(Recording("brake-2dof", t, {"x": t, "v": np.ones(50)}, {"x": "m", "v": "m/s"}, {"software": "test"},
                        {}, events), path)
     found = octave_load(path, OCTAVE_SIMPLE)
-    assert found == {("top", "fields"): "channels,t", (".", "t"): 50, ("channels", "v"): 50, ("channels", "x"): 50}
+    assert found == {("top", "fields"): "channels,event_columns,t", (".", "t"): 50, ("channels", "v"): 50,
+                     ("channels", "x"): 50, "events": [("segment", "ramp"), ("note", "operator")]}
     assert h5dump_events(path) == h5py_events(path) == [("segment", "ramp"), ("note", "operator")]

@@ -17,6 +17,8 @@ Run (``format = "friction-daq run 1"``, written live by ``daq.streaming.recorder
         stream attributes           source, rate_hz (nan if irregular), channels, dtype
     /events                 compound (host_time f8, kind str, source str, detail str,
                             count i8 (-1 = none), gap_s f8 (nan = none))
+    /event_columns/<field>  the same table, one dataset per field (strings fixed-length bytes), for
+                            readers without compound types (Octave's load); written when a file is finished
     root attributes         format, rig, software, created (UTC ISO), start_host_time,
                             rig_config (TOML), ramp (text, may be empty), ...
 ``read_h5`` puts every stream's channels on the fastest stream's time base (others
@@ -101,6 +103,25 @@ def events_to_array(events: list[dict[str, object]]) -> np.ndarray:
     return arr
 
 
+def write_event_columns(f: h5py.File) -> None:
+    """``/event_columns``: the /events table once more, one plain dataset per field (strings as fixed-length
+    bytes, UTF-8). Why twice: Octave's ``load`` (and MATLAB's of an HDF5 file) skips compound datasets, so
+    the table itself is invisible there; these columns load as a struct of vectors and char matrices
+    (tests/test_old_readers.py). Written when a file is finished (closed, recovered), from /events."""
+    rows = f["events"][()] if "events" in f else np.empty(0, dtype=EVENT_DTYPE)
+    if "event_columns" in f:
+        del f["event_columns"]
+    g = f.create_group("event_columns")
+    g.attrs["about"] = "the /events table as columns, for readers without compound types (Octave load)"
+    for name in EVENT_FIELDS:
+        col = rows[name]
+        if col.dtype == object:
+            texts = [v if isinstance(v, bytes) else str(v).encode("utf-8") for v in col]
+            g.create_dataset(name, data=np.array(texts, dtype=f"S{max([1, *map(len, texts)])}"))
+        else:
+            g.create_dataset(name, data=col)
+
+
 def events_from_array(arr: np.ndarray, t0: float = 0.0) -> list[dict[str, object]]:
     """Rows of an /events table as dicts; ``t`` is host_time on the recording's time base (minus ``t0``)."""
     def text(v: object) -> str:
@@ -168,6 +189,7 @@ def write_h5(rec: Recording, path: str | Path) -> None:
                     tg.create_dataset(name, data=np.asarray(x, dtype=float))
             if rec.events:
                 f.create_dataset("events", data=events_to_array(rec.events))
+                write_event_columns(f)
 
 
 def write_recording(rec: Recording, path: str | Path, truth_in_csv: bool = False) -> None:

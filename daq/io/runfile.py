@@ -34,7 +34,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from daq import __version__
 from daq.config import RigConfig, config_text
 from daq.errors import DaqError
-from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, LIBVER_RUN, STREAM_RESERVED
+from daq.io.h5recover import recover
+from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, LIBVER_RUN, STREAM_RESERVED, write_event_columns
 from daq.io.stream_format import Block, BusEvent, StreamMeta
 
 SOFTWARE = f"friction-daq {__version__}"
@@ -152,7 +153,8 @@ class RunWriter:
         return self
 
     def close(self) -> None:
-        """Write what is queued and close; the file is then clean (plain h5py opens it)."""
+        """Write what is queued and close; the file is then clean (plain h5py opens it). Then, outside SWMR
+        mode (which cannot add objects), the event table's columns for readers without compound types."""
         if self.f is None:
             return
         try:
@@ -160,6 +162,8 @@ class RunWriter:
         finally:
             self.f.close()
             self.f = None
+        with h5py.File(self.path, "a", libver=LIBVER_RUN, locking=False) as f:
+            write_event_columns(f)
 
     def __enter__(self) -> "RunWriter":
         return self
@@ -293,3 +297,10 @@ class RunWriter:
         sink.created = True
 
 
+def recover_run(path: str | Path) -> None:
+    """A run file whose writer died, made a finished file: the open-for-write flags cleared
+    (``h5recover.recover``; plain h5py, MATLAB and Octave then open it) and the event columns written
+    (``write_event_columns``). Do not call it on a file that a live writer still has open."""
+    recover(path)
+    with h5py.File(path, "a", libver=LIBVER_RUN, locking=False) as f:
+        write_event_columns(f)
