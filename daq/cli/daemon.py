@@ -20,6 +20,7 @@ import json
 import shutil
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -43,10 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--control", default=DEFAULT_CONTROL, help=f"control socket (default {DEFAULT_CONTROL})")
     p.add_argument("--keys", help="CURVE key directory (server.key_secret, operators/, observers/)")
     p.add_argument("--bus", default=DEFAULT_BUS, help=f"sample bus endpoint (default {DEFAULT_BUS})")
-    p.add_argument("--workdir", help="where simulated devices appear (--sim; default a temp dir)")
+    p.add_argument("--workdir", help="where simulated devices appear (--sim; default: the last session's bench "
+                                     "if it still runs, else a temp dir)")
+    p.add_argument("--state-dir", help="where the rig's session state and lock live (default DATA_DIR/.daq-daemon): "
+                                       "how the last session ended")
     p.set_defaults(func=cmd_daemon)
 
-    c = sub.add_parser("ctl", help="talk to a running daemon: status, ramp, stop, estop, record, note")
+    c = sub.add_parser("ctl", help="talk to a running daemon: status, ramp, stop, estop, reset, record, note")
     c.add_argument("--endpoint", default=DEFAULT_CONTROL, help=f"the daemon's control socket ({DEFAULT_CONTROL})")
     c.add_argument("--keys", help="client key directory (client.key_secret and server.key)")
     c.add_argument("--timeout", type=float, default=15.0, help="seconds to wait for a reply")
@@ -61,6 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=cmd_ctl_ramp)
     for name, hlp in (("stop", "controlled ramp to rest"), ("estop", "emergency stop (latched)")):
         cs.add_parser(name, help=hlp).set_defaults(func=cmd_ctl_simple, op=name)
+    cs.add_parser("reset", help="at standstill: clear the regulator's latch (e-stop, watchdog) and acknowledge "
+                                "an unclean end of the last session; motion is refused until then").set_defaults(
+        func=cmd_ctl_reset)
     rec = cs.add_parser("record", help="record start [--path FILE] | record stop")
     rec.add_argument("what", choices=["start", "stop"])
     rec.add_argument("--path", help="run file (record start; default DATA_DIR/RIG-STAMP.h5)")
@@ -100,6 +107,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from daq.config import load_rig
     from daq.daemon.control import ControlCfg, ControlServer, check_endpoint_security
     from daq.daemon.service import Daemon, DaemonCfg
+    from daq.daemon.session_state import STATE_DIR_NAME, SessionBusy
     from daq.sim.effectset import parse_effect
 
     load_rig(args.rig)  # bad rig: InputError before anything starts
@@ -114,12 +122,20 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         check_endpoint_security(ccfg)
     except (ValidationError, ValueError) as exc:
         raise InputError(args.keys or args.control, "--control", str(exc).splitlines()[0]) from None
+    state_dir = Path(args.state_dir) if args.state_dir else Path(args.data_dir) / STATE_DIR_NAME
     daemon = Daemon(DaemonCfg(rig=args.rig, sim=args.sim, sim_effects=args.effect, sim_time_scale=args.time_scale,
                               sim_seed=args.seed,
                               data_dir=Path(args.data_dir), bus_endpoint=args.bus,
-                              workdir=Path(args.workdir) if args.workdir else None))
+                              workdir=Path(args.workdir) if args.workdir else None, state_dir=state_dir))
     done = daemon.install_signal_handlers()  # before start: a SIGTERM while starting still ramps down
-    daemon.start()
+    try:
+        daemon.start()
+    except SessionBusy as exc:
+        print(f"daq daemon: {exc}", file=sys.stderr, flush=True)
+        return 1
+    if daemon.unclean is not None:
+        print(f"daq daemon: WARNING: {daemon.unclean.summary()}; motion refused until `daq ctl reset`",
+              file=sys.stderr, flush=True)
     server = None
     try:
         server = ControlServer(daemon.handlers(), ccfg).start()
@@ -197,12 +213,49 @@ def _fmt(x: Any, spec: str = ".4f") -> str:
     return "-" if x is None else format(x, spec)
 
 
+def _local(iso: str | None) -> str:
+    """An ISO time from status as the operator's local wall clock."""
+    try:
+        return datetime.fromisoformat(iso).astimezone().strftime("%H:%M:%S") if iso else "?"
+    except ValueError:
+        return iso or "?"
+
+
+def _truth_lines(st: dict[str, Any]) -> list[str]:
+    """What went wrong before now: an unclean end of the last session, a latched regulator, a lost recording."""
+    lines = []
+    last = st.get("last_session")
+    if last:
+        lines.append(f"LAST SESSION ENDED UNCLEANLY: daemon pid {last['pid']}, alive until after "
+                     f"{_local(last.get('last_alive_at'))}"
+                     + (f"; was recording {last['recording']['path']} ({last.get('recording_outcome')})"
+                        if last.get("recording") else "")
+                     + (f"; was running ramp {last['ramp']}" if last.get("ramp") else "")
+                     + (f"; {last['note']}" if last.get("note") else ""))
+    reg = st.get("regulator")
+    if reg:
+        trips = f", {reg['watchdog_trips']} watchdog trip(s)" if reg.get("watchdog_trips") is not None else ""
+        lines.append(f"regulator {reg.get('state') or 'UNREADABLE ' + str(reg.get('error'))}"
+                     f"{' LATCHED' if reg.get('latched') else ''}{trips} (read {_local(reg.get('read_at'))})")
+    motion = st.get("motion") or {}
+    if motion and not motion.get("allowed", True):
+        lines.append("motion    REFUSED until `daq ctl reset`")
+    fail = st.get("recording_failure")
+    if fail:
+        lines.append(f"recording ENDED UNEXPECTEDLY at {_local(fail.get('ended_at'))}: recorder pid {fail['pid']} "
+                     f"{fail['exit']}; {fail['path']}: {fail['recovery']}")
+    return lines
+
+
 def format_status(st: dict[str, Any]) -> str:
     belt = st.get("belt") or {}
+    age = belt.get("age_s")
     lines = [f"rig {st['rig']}{' (simulated)' if st.get('sim') else ''}  pid {st['pid']}  up {st['uptime_s']:.0f} s  "
              f"bus {st['bus']}",
-             f"belt      measured {_fmt(belt.get('measured'))} m/s  set point {_fmt(belt.get('setpoint'))} m/s  "
-             f"regulator link {belt.get('regulator')}"]
+             *_truth_lines(st),
+             f"belt      measured {_fmt(belt.get('measured'))} m/s{f' ({age:.1f} s ago)' if age is not None else ''}"
+             f"  commanded {_fmt(belt.get('commanded'))} m/s  regulator set point {_fmt(belt.get('setpoint'))} m/s  "
+             f"link {belt.get('regulator')}"]
     lines.append("streams")
     for name, s in sorted(st.get("streams", {}).items()):
         lines.append(f"  {name:16s} {s['rate_hz']:9.1f} samples/s  {s['samples']:>10d} samples  "
@@ -229,7 +282,7 @@ def format_status(st: dict[str, Any]) -> str:
     if ramp:
         lines.append(f"ramp      {ramp['state']} {100 * ramp['fraction']:.0f} %  "
                      f"t {ramp['t']:.1f}/{ramp['duration']:.1f} s  commanded {_fmt(ramp['commanded'])} m/s  "
-                     f"{ramp['reason']}")
+                     f"measured {_fmt(ramp.get('measured'))} m/s  {ramp['reason']}")
     return "\n".join(lines)
 
 
@@ -244,6 +297,15 @@ def cmd_ctl_status(args: argparse.Namespace) -> int:
 def cmd_ctl_simple(args: argparse.Namespace) -> int:
     def run(a):
         print(json.dumps(_call(a, a.op)))
+        return 0
+    return _run(run, args)
+
+
+def cmd_ctl_reset(args: argparse.Namespace) -> int:
+    def run(a):
+        res = _call(a, "reset")
+        ack = f"; acknowledged: {res['acknowledged']}" if res.get("acknowledged") else ""
+        print(f"reset: regulator {res.get('regulator_before')} -> {res.get('regulator')}{ack}", flush=True)
         return 0
     return _run(run, args)
 

@@ -283,24 +283,26 @@ class RampRunner:
                 with self._cmd_lock:
                     if not self._halt.is_set():
                         self.motor.stop()
-            self._finish("finished", "programme complete", self.duration)
+            self._finish("finished", "programme complete", self.duration, stopped=self.cfg.at_end == "stop")
         except _Halted:
             kind = self._halt_kind or "stopped"
-            self._finish(kind, "e-stop requested" if kind == "estopped" else "stop requested", t)
+            self._finish(kind, "e-stop requested" if kind == "estopped" else "stop requested", t, stopped=True)
         except (MotorError, MotorUnavailable) as exc:
             if self._halt.is_set():  # a set point refused because stop/estop got there first
                 kind = self._halt_kind or "stopped"
-                self._finish(kind, "e-stop requested" if kind == "estopped" else "stop requested", t)
+                self._finish(kind, "e-stop requested" if kind == "estopped" else "stop requested", t, stopped=True)
                 return
             self.error = exc
             why = f"regulator error: {exc}"
+            stopped = False
             try:
                 self.motor.stop()
             except (MotorError, MotorUnavailable) as exc2:
                 why += f"; controlled stop failed too: {exc2}"
             else:
                 why += "; controlled stop sent"
-            self._finish("aborted", why, t)
+                stopped = True
+            self._finish("aborted", why, t, stopped=stopped)
 
     def _lead_in(self) -> float:
         """Bring the belt to the programme's first speed before the clock starts (t < 0 in history)."""
@@ -328,12 +330,14 @@ class RampRunner:
                     self._hist_t[i] -= t0
         return t0
 
-    def _finish(self, state: State, reason: str, t: float) -> None:
+    def _finish(self, state: State, reason: str, t: float, stopped: bool) -> None:
+        """End the run; ``stopped``: the regulator was told to stop, so nothing is commanded any more (0, not
+        the programme's last speed: a status must not show a speed the belt is no longer asked for)."""
         self.state = state
         self.reason = reason
         p = self._progress
         self._report(RampProgress(state, p.t, 1.0 if state == "finished" else p.fraction, p.segment,
-                                  p.commanded, p.measured))
+                                  0.0 if stopped else p.commanded, p.measured))
         self._emit(RampEvent(state, t, reason=reason))  # type: ignore[arg-type]
 
 

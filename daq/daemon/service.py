@@ -14,9 +14,15 @@ ramps the belt down before it exits; if it dies instead, the regulator's watchdo
 stops the belt (the daemon's heartbeat thread dies with it), and the estimator and
 recorder notice that their parent is gone (the recorder closes its file cleanly).
 
+After a crash the operator is told (daq/daemon/session_state.py): a recorder that dies
+is noticed the moment it exits (its file is recovered, status and an event say so, a
+new recording can start); a daemon started after an unclean end of the last session on
+its rig says so, with the regulator's state as read at start, and refuses motion until
+``daq ctl reset``.
+
 For ``daq demo`` and scripts, :func:`run_sim_ramp` runs the whole thing as a library call.
 
-Decision record: docs/decisions/0005-daemon-process-layout.md.
+Decision records: docs/decisions/0005-daemon-process-layout.md, docs/decisions/0017-crash-truth.md.
 """
 
 from __future__ import annotations
@@ -48,6 +54,21 @@ from sim_backends.process import SimBenchProcess, cross_process_wiring
 
 from .acquisition import Acquisition, AcquisitionCfg
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
+from .session_state import (
+    LATCHED,
+    AttachedSimBench,
+    BenchRef,
+    MotionRefused,
+    RecordingEnd,
+    RecordingRef,
+    RegulatorReading,
+    SessionKeeper,
+    UncleanEnd,
+    describe_exit,
+    previous_recording_outcome,
+    recover_recording,
+    utcnow,
+)
 
 STANDSTILL = 1e-3  # [m/s]
 ROOT = Path(__file__).resolve().parents[2]  # the repository: where `python -m daq...` finds the packages
@@ -68,6 +89,8 @@ class DaemonCfg(BaseModel):
     flush_s: float = Field(0.25, gt=0, le=1.0)
     ramp_down_timeout_s: float = Field(10.0, gt=0)
     start_timeout_s: float = Field(180.0, gt=0, description="for the child processes to come up (numba caches)")
+    state_dir: Path | None = Field(None, description="where RIG.session.json and RIG.lock live (the CLI: "
+                                                     "DATA_DIR/.daq-daemon); None: no session state (library use)")
 
 
 def _popen(args: list[str], **kw: Any) -> subprocess.Popen:
@@ -143,6 +166,8 @@ class RecorderProcess:
         self.streams: list[str] = []
         self.progress = ""
         self.closed_line = ""
+        self.stopping = False  # set before the daemon itself ends it: any other exit is a failure
+        self.ended_at: _dt.datetime | None = None
         self._stream_seen = threading.Condition()
         line = _first_line(self.proc, timeout, "the recorder process")
         if not line.startswith("ready"):
@@ -181,7 +206,16 @@ class RecorderProcess:
         except (ValueError, IndexError):
             return None
 
+    def watch(self, on_exit: Callable[[RecorderProcess], None]) -> None:
+        """Call ``on_exit(self)`` the moment the process ends, so a dead recorder is noticed at once."""
+        def wait() -> None:
+            self.proc.wait()
+            self.ended_at = utcnow()
+            on_exit(self)
+        threading.Thread(target=wait, name=f"recorder-watch-{self.pid}", daemon=True).start()
+
     def stop(self, timeout: float = 60.0) -> int | None:
+        self.stopping = True
         rc = _terminate(self.proc, timeout)
         return rc
 
@@ -228,27 +262,26 @@ class Daemon:
         self.recorder: RecorderProcess | None = None
         self.started = False
         self.t_start = time.monotonic()
+        self.started_at = utcnow()
         self._lock = threading.RLock()
         self._rates: dict[str, float] = {}
         self._rate_stop = threading.Event()
         self._rig_arg = cfg.rig
+        self.session = SessionKeeper(cfg.state_dir, self.rig.rig) if cfg.state_dir is not None else None
+        self.unclean: UncleanEnd | None = None  # the last session's unclean end, until `daq ctl reset`
+        self.regulator: RegulatorReading | None = None  # the regulator's state, as last read
+        self.recording_failure: RecordingEnd | None = None  # a recorder that died on us, until the next start
+        self._halted = False  # a stop/estop was sent since the last ramp started: nothing is commanded
 
     # --- life cycle
     def start(self) -> "Daemon":
-
+        """Start everything; with a state directory, also find out how the last session on this rig ended."""
         endpoints = None
         try:
+            if self.session is not None:
+                self.session.acquire()  # SessionBusy if a live daemon holds the rig
             if self.cfg.sim:
-
-                workdir = self.cfg.workdir or Path(tempfile.mkdtemp(prefix=f"daq-sim-{self.rig.rig}-"))
-                self.rig = cross_process_wiring(self.rig)
-                self.sim = SimBenchProcess(self.cfg.rig, workdir, effects=self.cfg.sim_effects,
-                                           time_scale=self.cfg.sim_time_scale, seed=self.cfg.sim_seed,
-                                           owner_pid=os.getpid(), start_timeout_s=self.cfg.start_timeout_s)
-                endpoints = self.sim.endpoints
-                wired = Path(workdir) / f"{self.rig.rig}.toml"  # what the recordings store: the wiring in use
-                wired.write_text(config_text(self.rig))
-                self._rig_arg = str(wired)
+                endpoints = self._start_bench()
             self.drivers = build_drivers(self.rig, endpoints)
             self.drivers.open()
             self.acq = Acquisition(self.rig, self.drivers, AcquisitionCfg(endpoint=self.cfg.bus_endpoint))
@@ -257,12 +290,89 @@ class Daemon:
                 self.estimator = EstimatorProcess(self._rig_arg, self.acq.endpoint, self.cfg.estimator_endpoint,
                                                   self.cfg.start_timeout_s)
                 self.monitor = EstimateMonitor(self.estimator.endpoint)
+            self._read_regulator()
+            if self.session is not None:
+                self._begin_session()
         except BaseException:
             self._release()
+            if self.session is not None:
+                self.session.release()  # the previous session's file stays as it was
             raise
         threading.Thread(target=self._rate_loop, name="rates", daemon=True).start()
         self.started = True
         return self
+
+    def _start_bench(self) -> dict[str, dict[str, Any]]:
+        """The simulated bench: the last session's, if it still runs the same simulation, else a new one."""
+        self.rig = cross_process_wiring(self.rig)
+        prev = self.session.previous if self.session is not None else None
+        attached = AttachedSimBench.find(prev.sim_bench if prev else None, self.cfg.rig, self.cfg.workdir,
+                                         self.cfg.sim_effects, self.cfg.sim_time_scale, self.cfg.sim_seed)
+        if attached is not None:
+            self.sim, workdir = attached, attached.workdir
+        else:
+            workdir = self.cfg.workdir or Path(tempfile.mkdtemp(prefix=f"daq-sim-{self.rig.rig}-"))
+            self.sim = SimBenchProcess(self.cfg.rig, workdir, effects=self.cfg.sim_effects,
+                                       time_scale=self.cfg.sim_time_scale, seed=self.cfg.sim_seed,
+                                       owner_pid=os.getpid(), start_timeout_s=self.cfg.start_timeout_s)
+        wired = Path(workdir) / f"{self.rig.rig}.toml"  # what the recordings store: the wiring in use
+        wired.write_text(config_text(self.rig))
+        self._rig_arg = str(wired)
+        return self.sim.endpoints
+
+    def _bench_ref(self) -> BenchRef | None:
+        if self.sim is None:
+            return None
+        return BenchRef(pid=self.sim.pid, control=self.sim.control, workdir=str(Path(self.sim.workdir).resolve()),
+                        endpoints=self.sim.endpoints, rig=self.cfg.rig, effects=list(self.cfg.sim_effects),
+                        time_scale=self.cfg.sim_time_scale, seed=self.cfg.sim_seed)
+
+    def _begin_session(self) -> None:
+        """Report an unclean end of the last session (with the regulator as read now) and mark this one running."""
+        assert self.session is not None
+        unclean = self.session.unclean_end(utcnow())
+        if unclean is not None and unclean.found_by_pid == os.getpid():  # found now, not carried from before
+            outcome = previous_recording_outcome(unclean.recording) if unclean.recording else None
+            notes = [unclean.note] if unclean.note else []
+            if self.sim is not None and not isinstance(self.sim, AttachedSimBench):
+                notes.append("a new simulated bench was started (the last one is gone or simulates something "
+                             "else): its regulator is not the one that tripped")
+            unclean = unclean.model_copy(update={"regulator": self.regulator, "recording_outcome": outcome,
+                                                 "note": "; ".join(notes)})
+        self.unclean = unclean
+        self.session.begin(self.started_at, self._bench_ref(), unclean)
+        if unclean is not None:
+            self.acq.publish_event("unclean_end", "daemon", unclean.summary())
+
+    def _read_regulator(self) -> RegulatorReading:
+        """STAT? from the regulator (and the simulated bench's watchdog trip counter); kept for status."""
+        now = utcnow()
+        motor = self.drivers.motor
+        try:
+            st = motor.status()
+        except Exception as exc:  # noqa: BLE001 - unreadable is itself the answer
+            reading = RegulatorReading(error=f"{type(exc).__name__}: {exc}", read_at=now)
+        else:
+            trips = None
+            if self.sim is not None:
+                try:
+                    trips = int(self.sim.status().get("watchdog_trips"))
+                except (TimeoutError, OSError, TypeError, ValueError):
+                    pass
+            reading = RegulatorReading(state=st.state, latched=st.state in LATCHED, measured=st.measured,
+                                       watchdog_trips=trips, read_at=now)
+        self.regulator = reading
+        return reading
+
+    def motion_refusal(self, read: bool = False) -> str | None:
+        """Why no ramp may start now (None: it may): an unclean end not yet reset, or a latched regulator
+        (as last read, or ``read`` now)."""
+        if self.unclean is not None:
+            return f"motion refused until `daq ctl reset`: {self.unclean.summary()}"
+        reg = self._read_regulator() if read else self.regulator
+        if reg is not None and reg.latched:
+            return f"motion refused: the regulator is latched in {reg.state}; with the belt at rest, `daq ctl reset`"
+        return None
 
     def _release(self) -> None:
         for step in (lambda: self.monitor and self.monitor.close(),
@@ -289,9 +399,12 @@ class Daemon:
                 pass
             if self.recorder is not None:
                 time.sleep(2 * self.cfg.flush_s)  # the ramp-down's last samples reach the file
-                self.recorder.stop()
+                if self.recorder.stop() != 0:
+                    recover_recording(self.recorder.path)
                 self.recorder = None
             self._release()
+            if self.session is not None:
+                self.session.end_clean()
 
     def wait_standstill(self, timeout: float) -> bool:
         t_end = time.monotonic() + timeout
@@ -314,18 +427,60 @@ class Daemon:
         return done
 
     def _rate_loop(self) -> None:
-        """Samples per second of every stream, over the last second (for status)."""
+        """Samples per second of every stream, over the last second (for status); the session's heartbeat."""
         prev, t_prev = {k: v.samples for k, v in self.acq.counters().items()}, time.monotonic()
         while not self._rate_stop.wait(1.0):
             now, cur = time.monotonic(), {k: v.samples for k, v in self.acq.counters().items()}
             self._rates = {k: (n - prev.get(k, 0)) / (now - t_prev) for k, n in cur.items()}
             prev, t_prev = cur, now
+            try:
+                if self.session is not None:
+                    self.session.heartbeat(self._recording_ref(), self._ramp_source())
+                if isinstance(self.sim, AttachedSimBench):
+                    self.sim.keepalive()
+            except OSError as exc:  # a full disk must not stop the status thread; say it once a second
+                print(f"daq daemon: session state: {exc}", file=sys.stderr, flush=True)
+
+    def _recording_ref(self) -> RecordingRef | None:
+        rec = self.recorder
+        return RecordingRef(path=str(rec.path), recorder_pid=rec.pid) if rec is not None else None
+
+    def _ramp_source(self) -> str | None:
+        r = self.runner
+        return r.source if r is not None and r.running else None
+
+    def _on_recorder_exit(self, rec: RecorderProcess) -> None:
+        """A recorder ended: if the daemon did not end it, report it, recover its file, free the slot."""
+        if rec.stopping:
+            return
+        with self._lock:
+            if rec.stopping:  # shutdown holds the lock while it stops the recorder
+                return
+            if self.recorder is rec:
+                self.recorder = None
+            rc = rec.proc.returncode
+            failure = RecordingEnd(path=str(rec.path), pid=rec.pid, exit=describe_exit(rc), returncode=rc,
+                                   ended_at=rec.ended_at or utcnow(), last_progress=rec.progress,
+                                   recovery="recovering the file")
+            self.recording_failure = failure
+        changed, what, dt = recover_recording(rec.path)
+        failure = failure.model_copy(update={"recovered": changed, "recovery": what, "recovery_s": dt})
+        with self._lock:
+            if self.recording_failure is not None and self.recording_failure.pid == rec.pid:
+                self.recording_failure = failure
+        self.acq.publish_event("recorder_died", "daemon", failure.summary())
+        print(f"daq daemon: {failure.summary()}", file=sys.stderr, flush=True)
+        if self.session is not None:
+            try:
+                self.session.update(recording=None)
+            except OSError:
+                pass
 
     # --- control handlers (each takes the request's args, returns a result dict)
     def handlers(self) -> dict[str, Any]:
         return {"status": self.handle_status, "ramp": self.handle_ramp, "stop": self.handle_stop,
                 "estop": self.handle_estop, "record_start": self.handle_record_start,
-                "record_stop": self.handle_record_stop, "note": self.handle_note}
+                "record_stop": self.handle_record_stop, "note": self.handle_note, "reset": self.handle_reset}
 
     def handle_status(self, args: dict) -> dict:
         st = self.acq.status()
@@ -336,12 +491,20 @@ class Daemon:
                  "lost_frames": sum(s["lost_frames"] for s in st["sources"].values()),
                  "checksum_errors": sum(s["checksum_errors"] for s in st["sources"].values()),
                  "motor_failed_polls": motor.get("failed_polls", 0)}
+        refusal = self.motion_refusal()
         out: dict[str, Any] = {"rig": self.rig.rig, "sim": self.cfg.sim, "pid": os.getpid(),
                                "uptime_s": time.monotonic() - self.t_start, "bus": self.acq.endpoint,
-                               "belt": {"measured": motor.get("measured"), "setpoint": motor.get("setpoint"),
-                                        "regulator": motor.get("state")},
+                               "belt": self._belt(motor),
                                "streams": streams, "sources": st["sources"], "drops": drops,
-                               "recording": None, "ramp": None, "estimator": None}
+                               "recording": None, "ramp": None, "estimator": None,
+                               "motion": {"allowed": refusal is None, "refused_because": refusal},
+                               "regulator": self.regulator.model_dump(mode="json") if self.regulator else None,
+                               "last_session": self.unclean.model_dump(mode="json") if self.unclean else None,
+                               "recording_failure": (self.recording_failure.model_dump(mode="json")
+                                                     if self.recording_failure else None),
+                               "session": ({"state_file": str(self.session.path),
+                                            "started_at": self.started_at.isoformat()}
+                                           if self.session is not None else None)}
         if self.estimator is not None:
             est = dict(self.estimator.stats)
             out["estimator"] = {"pid": self.estimator.pid, "alive": self.estimator.alive,
@@ -354,13 +517,31 @@ class Daemon:
             out["recording"] = {"path": str(rec.path), "pid": rec.pid, "alive": rec.alive, "progress": rec.progress}
             drops["recorder_lost_blocks"] = rec.lost_blocks() or 0
         if self.sim is not None:
-            out["sim_bench"] = {"pid": self.sim.pid, "control": self.sim.control, "alive": self.sim.alive()}
+            out["sim_bench"] = {"pid": self.sim.pid, "control": self.sim.control, "alive": self.sim.alive(),
+                                "attached": isinstance(self.sim, AttachedSimBench)}
         if self.runner is not None:
             p = self.runner.progress()
             out["ramp"] = {"state": str(p.state), "t": p.t, "duration": self.runner.duration, "fraction": p.fraction,
-                           "segment": p.segment, "commanded": p.commanded, "measured": p.measured,
+                           "segment": p.segment, "commanded": out["belt"]["commanded"],
+                           "measured": out["belt"]["measured"],
                            "reason": self.runner.reason, "source": self.runner.source}
         return out
+
+    def _belt(self, motor: dict[str, Any]) -> dict[str, Any]:
+        """Measured (the latest motor sample, and its age), the regulator's set point, and what we command.
+
+        ``commanded`` is 0 once a stop or e-stop was sent (or a ramp ended in a stop), whatever
+        the programme's last value was; None before anything was commanded.
+        """
+        t = motor.get("host_time")
+        if self._halted:
+            commanded: float | None = 0.0
+        elif self.runner is not None:
+            commanded = self.runner.progress().commanded
+        else:
+            commanded = None
+        return {"measured": motor.get("measured"), "age_s": None if t is None else time.monotonic() - t,
+                "setpoint": motor.get("setpoint"), "commanded": commanded, "regulator": motor.get("state")}
 
     def _on_ramp_event(self, ev: RampEvent) -> None:
         self.acq.publish_event("ramp_segment" if ev.kind.startswith("segment") else f"ramp_{ev.kind}", "ramp",
@@ -377,8 +558,15 @@ class Daemon:
             d = self.rig.drive
             runner = make(self.drivers.motor, d.max_speed_m_per_s, d.max_accel_m_per_s2,
                           cfg=RampRunnerCfg(time_scale=float(time_scale)), on_event=self._on_ramp_event)
+            why = self.motion_refusal(read=True)
+            if why is not None:
+                self.acq.publish_event("motion_refused", "daemon", f"{label}: {why}")
+                raise MotionRefused(why)
             self.runner = runner.start()
+            self._halted = False
         self.acq.publish_event("ramp_start", "ramp", label)
+        if self.session is not None:
+            self.session.update(ramp=runner.source)
         return runner
 
     def handle_ramp(self, args: dict) -> dict:
@@ -388,6 +576,7 @@ class Daemon:
         return {"started": path, "duration_s": self.runner.duration}
 
     def handle_stop(self, args: dict) -> dict:
+        self._halted = True
         if self.runner is not None and self.runner.running:
             self.runner.stop()
         else:
@@ -396,12 +585,40 @@ class Daemon:
         return {"stopping": True}
 
     def handle_estop(self, args: dict) -> dict:
+        self._halted = True
         if self.runner is not None and self.runner.running:
             self.runner.estop()
         else:
             self.drivers.motor.estop()
         self.acq.publish_event("estop", "operator", "emergency stop")
+        self._read_regulator()
         return {"estop": True}
+
+    def handle_reset(self, args: dict) -> dict:
+        """Acknowledge an unclean end and clear the regulator's latch (ESTOP/WATCHDOG): only at standstill.
+
+        Why explicit: after a crash someone should look at the rig before it moves again; the
+        reset is the operator saying so, and it is logged as an event.
+        """
+        with self._lock:
+            if self.runner is not None and self.runner.running:
+                raise MotionRefused("a ramp is running: stop it first (reset is for a belt at rest)")
+            measured, _ = self.drivers.motor.read_speed()
+            if abs(measured) >= 5 * STANDSTILL:
+                raise MotionRefused(f"the belt is moving ({measured:.4f} m/s): reset only at standstill")
+            before = self._read_regulator()
+            if before.latched:
+                self.drivers.motor.reset()  # the regulator refuses (MotorError) unless at standstill
+            after = self._read_regulator()
+            cleared, self.unclean = self.unclean, None
+            if self.session is not None:
+                self.session.update(durable=True, unclean_end=None)
+        detail = (f"regulator {before.state} -> {after.state}"
+                  + (f"; acknowledged: {cleared.summary()}" if cleared is not None else ""))
+        self.acq.publish_event("reset", "operator", detail)
+        print(f"daq daemon: reset: {detail}", file=sys.stderr, flush=True)
+        return {"reset": True, "regulator_before": before.state, "regulator": after.state,
+                "acknowledged": cleared.summary() if cleared is not None else None}
 
     def handle_record_start(self, args: dict) -> dict:
         with self._lock:
@@ -415,9 +632,16 @@ class Daemon:
                 raise InputError(str(path), "path", "must end in .h5 or .hdf5")
             path.parent.mkdir(parents=True, exist_ok=True)
             eps = [self.acq.endpoint] + ([self.estimator.endpoint] if self.estimator is not None else [])
-            self.recorder = RecorderProcess(path, self._rig_arg, eps, self.cfg.flush_s, self.cfg.start_timeout_s)
+            rec = self.recorder = RecorderProcess(path, self._rig_arg, eps, self.cfg.flush_s,
+                                                  self.cfg.start_timeout_s)
+            lost, self.recording_failure = self.recording_failure, None
+            rec.watch(self._on_recorder_exit)
         self.acq.publish_event("record_start", "operator", str(path))
-        return {"recording": str(path), "pid": self.recorder.pid}
+        if lost is not None:  # the new file keeps the record of the one before it
+            self.acq.publish_event("previous_recording_lost", "daemon", lost.summary())
+        if self.session is not None:
+            self.session.update(recording=self._recording_ref())
+        return {"recording": str(path), "pid": rec.pid}
 
     def handle_record_stop(self, args: dict) -> dict:
         with self._lock:
@@ -427,8 +651,11 @@ class Daemon:
         self.acq.publish_event("record_stop", "operator", str(rec.path))
         time.sleep(2 * self.cfg.flush_s)  # the stop event and the last blocks reach the recorder
         rc = rec.stop()
+        if self.session is not None:
+            self.session.update(recording=None)
         if rc != 0:
-            raise RuntimeError(f"recorder exited with status {rc}: {rec.closed_line or rec.progress}")
+            _, what, _ = recover_recording(rec.path)
+            raise RuntimeError(f"recorder {describe_exit(rc)}: {rec.closed_line or rec.progress}; {rec.path}: {what}")
         return {"closed": str(rec.path), "recorder": rec.closed_line}
 
     def handle_note(self, args: dict) -> dict:
