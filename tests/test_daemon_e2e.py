@@ -165,6 +165,16 @@ def daemon(tmp_path_factory):
 # ----------------------------------------------------------------------------- a ramp, recorded
 
 
+def test_record_start_in_a_folder_that_cannot_be_written_is_one_input_error(daemon):
+    """Issue 16: it was answered 'failed' with a raw FileNotFoundError (or the recorder died later)."""
+    for bad in ("/proc/self/run.h5", "/proc/no-such/run.h5"):
+        r = daemon.ctl("record", "start", "--path", bad)
+        assert r.returncode == 2, r.stdout + r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"daq: error: {bad}: path: cannot write in "), r.stderr
+    assert daemon.status()["recording"] is None  # nothing started, nothing left half-open
+
+
 def test_ctl_ramp_runs_and_the_recording_holds_every_channel_and_the_estimator(daemon):
     ramp = daemon.tmp / "short.toml"
     ramp.write_text(SHORT)

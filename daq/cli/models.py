@@ -103,6 +103,9 @@ def _session(args: argparse.Namespace):
             by_count.setdefault(n, []).append(name)
         say("filled in by interpolation where the recording has no data: "
             + "; ".join(f"{n} samples of {', '.join(names)}" for n, names in by_count.items()))
+    if s.m.outliers:
+        say("single-sample spikes repaired (cubic through the neighbours): "
+            + ", ".join(f"{k} {v.size}" for k, v in s.m.outliers.items()))
     say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
          f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
     return model, s

@@ -630,7 +630,13 @@ class Daemon:
                 raise InputError(str(path), "path", "exists; recordings are never overwritten")
             if path.suffix.lower() not in (".h5", ".hdf5"):
                 raise InputError(str(path), "path", "must end in .h5 or .hdf5")
-            path.parent.mkdir(parents=True, exist_ok=True)
+            try:  # here, not in the recorder process: a bad folder is the operator's input, answered at once
+                path.parent.mkdir(parents=True, exist_ok=True)
+                with tempfile.TemporaryFile(dir=path.parent):
+                    pass
+            except OSError as exc:
+                raise InputError(str(path), "path", f"cannot write in {path.parent}: "
+                                                    f"{exc.strerror or exc}") from None
             eps = [self.acq.endpoint] + ([self.estimator.endpoint] if self.estimator is not None else [])
             rec = self.recorder = RecorderProcess(path, self._rig_arg, eps, self.cfg.flush_s,
                                                   self.cfg.start_timeout_s)

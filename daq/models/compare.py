@@ -41,7 +41,7 @@ def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict
 def regimes(session: Session, idx: np.ndarray) -> dict[str, np.ndarray]:
     """Boolean masks over the residual samples, from the data (not from the model under test)."""
     m = session.m
-    v_stick = session.cfg.contact.v_stick_m_per_s
+    v_stick = m.stick_threshold(session.cfg)
     vr = m.v_rel[idx]
     stuck = np.abs(vr) < v_stick
     grow = m.d_abs_v_rel[idx] > 0
@@ -65,7 +65,7 @@ def invariants(session: Session, t: np.ndarray, x: np.ndarray, v_rel: np.ndarray
     k = xd.size // n
     p2p = np.ptp(xd[: k * n].reshape(k, n), axis=1) if k else np.array([np.ptp(xd)])
     return {"stick_slip_frequency_Hz": float(f), "slip_amplitude": float(np.median(p2p)),
-            "stick_fraction": float(np.mean(np.abs(v_rel) < session.cfg.contact.v_stick_m_per_s))}
+            "stick_fraction": float(np.mean(np.abs(v_rel) < session.m.stick_threshold(session.cfg)))}
 
 
 def spectral_line(t: np.ndarray, x: np.ndarray, fmin: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +83,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     out: dict = {
         "data": session.source,
         "filled_samples": session.rec.meta.get("filled", {}),
+        "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
         "model": fitted.model.describe(),
         "model_digest": fitted.model.digest(),
         "error": fitted.rms(primary, "held"),

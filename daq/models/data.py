@@ -4,6 +4,8 @@ Why per rig: each rig measures different things (brake: positions only; drum:
 angle, velocity, thrust; belt: mass positions) and a simulated window needs a
 full state at its start. Everything rig-specific about *data* lives here; the
 physics stays in daq/physics and the fitting in daq/models/shooting.py.
+
+belt-ndof's hybrid window starts, stick threshold and spike repair: docs/decisions/0021-belt-ndof-in-the-model-loop.md.
 """
 
 from __future__ import annotations
@@ -18,13 +20,14 @@ from daq.config import RigConfig
 from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.io.loading import MODEL_CHANNELS
-from daq.physics import brake2dof, drum
+from daq.physics import beltndof, brake2dof, drum
 from daq.physics.contact import AUX
 from daq.physics.effects import DC_MIN, TAIL, E, stick_rates
 from daq.physics.jit import kernel
 from daq.signals import noise_sigma, sg
 from daq.sim.rigs import SimRig
 
+SPIKE_SIGMAS = 10.0  # a sample this many noise levels off the cubic through its neighbours is a spike
 FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
 
 
@@ -48,6 +51,11 @@ class Measured:
     aging: dict[float, np.ndarray] = field(default_factory=dict)  # Dieterich's state along the data, per Dc
     v_rel: np.ndarray | None = None  # data-derived relative sliding speed (for regimes)
     d_abs_v_rel: np.ndarray | None = None
+    v_stick: float | None = None  # |v_rel| below this is stuck in these data (None: the rig config's v_stick)
+    outliers: dict[str, np.ndarray] = field(default_factory=dict)  # per output, sample indices of repaired spikes
+
+    def stick_threshold(self, cfg: RigConfig) -> float:
+        return self.v_stick if self.v_stick is not None else cfg.contact.v_stick_m_per_s
 
     @property
     def primary(self) -> str:
@@ -94,7 +102,47 @@ class RigData(ABC):
         rate = 1.0 / float(np.median(dt))
         if np.max(np.abs(dt * rate - 1.0)) > 0.01:
             raise InputError(source, "t", "samples must be evenly spaced (resample first)")
-        return self._prepare(rec, t, rate, source)
+        channels, outliers = dict(rec.channels), {}
+        for name in self.output_channels():
+            if name in channels:
+                channels[name], idx = self._despike(name, np.asarray(channels[name], dtype=float))
+                if idx.size:
+                    outliers[name] = idx
+        if outliers:
+            rec = Recording(rec.rig, rec.t, channels, rec.units, rec.meta, rec.truth, rec.events)
+        m = self._prepare(rec, t, rate, source)
+        m.outliers = outliers
+        return m
+
+    def output_channels(self) -> tuple[str, ...]:
+        """The channels the model predicts (where single-sample spikes are repaired before anything reads them)."""
+        return tuple(c for c in MODEL_CHANNELS[self.rig] if c not in (self.drive_channel, "thrust", "drum_speed"))
+
+    def _despike(self, name: str, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Single-sample spikes (impulsive noise) replaced by the cubic through their two neighbours on each side.
+
+        Why repair, not a robust loss alone: a spike also corrupts everything computed from the samples
+        around it before any fit runs (the smoothed velocities that say where the contact sticks, each window's
+        start state); and a spike of 100 noise units dominates the rms error a user is shown. A sample is a spike
+        when it stands more than SPIKE_SIGMAS noise levels off the cubic through its neighbours (a smooth motion,
+        stick-slip kinks included, is predicted to a fraction of the noise) and is the largest such departure
+        within two samples. Counted per channel and shown (``outliers`` in compare's and diagnose's JSON).
+        """
+        if x.size < 5:
+            return x, np.zeros(0, dtype=int)
+        pred = np.full(x.size, np.nan)
+        pred[2:-2] = (-x[:-4] + 4.0 * x[1:-3] + 4.0 * x[3:-1] - x[4:]) / 6.0
+        d = np.abs(np.nan_to_num(x - pred))
+        sigma, _ = self._sigma(name, x)
+        sigma = max(sigma, float(noise_sigma(x)))
+        big = d > SPIKE_SIGMAS * max(sigma, 1e-300)
+        if not big.any():
+            return x, np.zeros(0, dtype=int)
+        local_max = d >= np.maximum.reduce([np.roll(d, k) for k in (-2, -1, 1, 2)])
+        idx = np.flatnonzero(big & local_max)
+        out = x.copy()
+        out[idx] = pred[idx]
+        return out, idx
 
     @abstractmethod
     def _prepare(self, rec: Recording, t: np.ndarray, rate: float, source: str) -> Measured: ...
@@ -107,6 +155,10 @@ class RigData(ABC):
     def start_state(self, sim: SimRig, m: Measured, i: int) -> np.ndarray:
         """Full state (mechanics + contact tail) at sample i, velocities from the data."""
 
+    def before_window(self, sim: SimRig, m: Measured, i: int, s0: np.ndarray) -> None:
+        """Set whatever the simulator keeps besides the state vector for a run from ``s0`` at sample i (belt-ndof:
+        each mass's stick/slip mode and stick clock; ``s0`` may be corrected in place). Smooth rigs keep nothing."""
+
     def synthetic_extras(self, sim: SimRig, states: np.ndarray, aux: np.ndarray, channels: dict[str, np.ndarray],
                          rng: np.random.Generator) -> dict[str, np.ndarray]:
         """Channels besides the predicted outputs that a synthetic copy of the data must take from the model."""
@@ -118,6 +170,10 @@ class RigData(ABC):
         smooth = sg(measured, rate, 0.25, degree=3)
         if command_channel and command_channel in rec.channels and np.all(np.isfinite(rec.channels[command_channel])):
             return smooth, np.asarray(rec.channels[command_channel], dtype=float), command_channel
+        if noise_sigma(measured) == 0.0:
+            # no noise at all: not a measurement but a programme (an imported `--map vb=...` constant or steps, as a
+            # spring-slider's driver speed): it is the command, and smoothing would round its steps
+            return measured.astype(float), measured.astype(float), f"{self.drive_channel} (noise-free: the programme)"
         # no command recorded: the slow trend of the measured speed (what a programme would have been)
         tt = (t - t[0]) / max(t[-1] - t[0], 1e-9)
         coef = np.polynomial.polynomial.polyfit(tt, measured, 3)
@@ -315,7 +371,139 @@ class DrumData(RigData):
         return s
 
 
-RIG_DATA: dict[str, type[RigData]] = {"brake-2dof": BrakeData, "drum-pendulum": DrumData}
+def stuck_by_hysteresis(v_rel: np.ndarray, v_lo: float, v_hi: float) -> np.ndarray:
+    """Stuck samples: everything outside the runs of |v_rel| > v_lo that reach v_hi somewhere.
+
+    Why hysteresis: one threshold near the velocity noise cuts a long stick into pieces wherever the noise
+    crosses it (seen at a 1 mm/s drive: sticks of 0.3 s read as runs of 0.02-0.2 s), and a window that starts
+    with a stick clock that short breaks away far too early once static friction ages with stick time. A real
+    slip is fast; noise that crosses v_lo but never v_hi is still a stick."""
+    above = np.abs(v_rel) > v_lo
+    edges = np.diff(np.concatenate([[0], above.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    stuck = np.ones(v_rel.size, dtype=bool)
+    big = np.abs(v_rel) > v_hi
+    for a, b in zip(starts, stops):
+        if big[a:b].any():
+            stuck[a:b] = False
+    return stuck
+
+
+def stuck_time(stuck: np.ndarray, rate: float) -> np.ndarray:
+    """Per sample, how long the contact has been stuck without a break [s] (0 where it slips)."""
+    out = np.zeros(stuck.size)
+    run = 0.0
+    for i, st in enumerate(stuck):
+        run = run + 1.0 / rate if st else 0.0
+        out[i] = run
+    return out
+
+
+class BeltData(RigData):
+    """belt-ndof (paper 000): predicts every mass's position; a window starts with each mass's stick/slip mode.
+
+    Why a hybrid start: paper 000's law is discontinuous, so its simulator keeps each mass's mode (stuck or
+    slipping), its stick clock and the break-away level beside the state vector (daq/physics/beltndof.py).
+    A window's start sets them from the data: a mass whose smoothed velocity is within v_stick of the belt's
+    is stuck, stuck since the first sample of that run (the stick clock the stick-time effect reads); a mass
+    that slips started slipping at the static limit of its last stick (the break-away level its falling
+    branch starts from).
+    """
+
+    drive_channel = "vb"
+    rig = "belt-ndof"
+
+    def __init__(self, cfg: RigConfig) -> None:
+        super().__init__(cfg)
+        self.n = cfg.mechanics.n_masses
+        self.position_slots = tuple(range(self.n))
+        self.velocity_slots = tuple(range(self.n, 2 * self.n))
+
+    def _prepare(self, rec, t, rate, source):
+        names = [f"x{i + 1}" for i in range(self.n)]
+        for name in names:
+            if name not in rec.channels:
+                raise InputError(source, name, f"missing column (the rig has {self.n} masses: needs {', '.join(names)})")
+        xs = {name: np.asarray(rec.channels[name], dtype=float) for name in names}
+        vb = np.asarray(rec.channels["vb"], dtype=float)
+        drive_m, drive_c, csrc = self._drive(rec, t, rate, vb, "vb_set")
+        sig, src = {}, {}
+        for name, x in xs.items():
+            sig[name], src[name] = self._sigma(name, x)
+        half = 0.006 if rate >= 500 else 1.5 / rate
+        xd = {name: sg(x, rate, half, 1) for name, x in xs.items()}
+        v_rel = xd["x1"] - drive_m
+        m = Measured(self.rig, source, t, rate, xs, {name: "m" for name in names}, sig, src, drive_m, drive_c, csrc,
+                     self._temp(rec, rate))
+        m.v_rel = v_rel
+        m.d_abs_v_rel = sg(np.abs(v_rel), rate, half, 1, degree=2)
+        # stuck: within the contact's v_stick of the belt, or within the velocity's own noise where that is larger
+        # (seen: 20 um tracker noise at 250 Hz puts 1.7 mm/s on the derivative; with the config's 1 mm/s alone
+        # 17 % of the samples read stuck, against 56 % in the simulator's truth; with 4 sigma, 57 %)
+        v_stick = max(self.cfg.contact.v_stick_m_per_s, 4.0 * float(noise_sigma(v_rel)))
+        m.v_stick = v_stick
+        pos = (lambda x: sg(x, rate, half)) if rate >= 500 else (lambda x: x)
+        travel = np.concatenate([[0.0], np.cumsum(0.5 * (drive_m[1:] + drive_m[:-1]) / rate)])
+        m.context = {"travel": travel}
+        for name in names:
+            stuck = stuck_by_hysteresis(xd[name] - drive_m, v_stick, 3.0 * v_stick)
+            m.context[f"{name}_smooth"] = pos(xs[name])
+            m.context[f"{name}_dot"] = np.where(stuck, drive_m, xd[name])
+            m.context[f"{name}_stuck_s"] = stuck_time(stuck, rate)
+            # the stick that ended last before each sample: how long it lasted (the static limit it broke at)
+            last = np.zeros(t.size)
+            held = 0.0
+            st = m.context[f"{name}_stuck_s"]
+            for i in range(1, t.size):
+                if st[i] == 0.0 and st[i - 1] > 0.0:
+                    held = st[i - 1]
+                last[i] = held
+            m.context[f"{name}_last_stick_s"] = last
+        m.context["stick_clock"] = m.context["x1_stuck_s"]
+        return m
+
+    def output_channels(self):
+        return tuple(f"x{i + 1}" for i in range(self.n))
+
+    def predict(self, sim, states):
+        return {f"x{i + 1}": states[..., i] for i in range(self.n)}
+
+    def start_state(self, sim, m, i):
+        c, n = m.context, self.n
+        s = np.zeros(beltndof.n_state(n))
+        for k in range(n):
+            s[k] = c[f"x{k + 1}_smooth"][i]
+            s[n + k] = c[f"x{k + 1}_dot"][i]
+        tail = 2 * n
+        s[tail + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
+        s[tail + TAIL.VLAG] = m.drive_measured[i]
+        s[tail + TAIL.POS] = c["travel"][i]
+        return s
+
+    def before_window(self, sim, m, i, s0):
+        c, n = m.context, self.n
+        p, e = sim.p, sim.e
+        t_rel = float(m.t[i] - m.t[0])
+        vb = float(m.drive_measured[i])
+        hs = beltndof.new_hybrid(n, p[beltndof.P.F_S0], 1.0)
+        rate_need = p[beltndof.P.K] * vb  # paper 000's Delta for a mass on a steady belt: K S
+        for k in range(n):
+            stuck_s = float(c[f"x{k + 1}_stuck_s"][i])
+            if stuck_s > 0.0:
+                hs[beltndof.H.MODE, k] = beltndof.STICK
+                hs[beltndof.H.STICK_T0, k] = t_rel - stuck_s
+                # a stuck mass moves with the belt: its start velocity is no free value (a fit that moved it,
+                # seen at 1e3-4e7 m/s since nothing depended on it, made the contact chatter 3e5 times a window)
+                s0[n + k] = vb
+            else:
+                w = vb - float(c[f"x{k + 1}_dot"][i])
+                hs[beltndof.H.SLIP_DIR, k] = 1.0 if w >= 0.0 else -1.0
+                hs[beltndof.H.FS_BREAK, k] = beltndof._static_limit(float(c[f"x{k + 1}_last_stick_s"][i]), rate_need,
+                                                                    p, e)
+        sim.hybrid = hs
+
+
+RIG_DATA: dict[str, type[RigData]] = {"brake-2dof": BrakeData, "drum-pendulum": DrumData, "belt-ndof": BeltData}
 
 
 def rig_data(cfg: RigConfig, source: str = "model") -> RigData:

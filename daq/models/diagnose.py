@@ -323,6 +323,7 @@ class Diagnosis:
         return {
             "data": session.source,
             "filled_samples": session.rec.meta.get("filled", {}),
+            "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
             "model": self.base.model.describe(),
             "error": e0,
             "error_unit": unit,

@@ -84,7 +84,7 @@ class Session:
         self.cfg = cfg
         self.rd: RigData = rig_data(cfg, source)
         self.m: Measured = self.rd.prepare(rec, source)
-        self.win: Windows = make_windows(self.m, cfg.contact.v_stick_m_per_s, max_windows=max_windows)
+        self.win: Windows = make_windows(self.m, self.m.stick_threshold(cfg), max_windows=max_windows)
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
@@ -288,6 +288,7 @@ class Session:
             s0[pr.slots] = fitted.fit.start_values[fitted_w.index(w0)]
         i0 = int(self.win.starts[w0])
         n = self.m.n - i0
+        self.rd.before_window(sim, self.m, i0, s0)
         ch = sim.advance(s0, float(pr.rt[i0]), pr.h, pr.n_sub, n, pr.rt, pr.rv)
         return np.arange(i0, self.m.n), self.rd.predict(sim, ch.states), ch.states, ch.aux
 

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from daq.physics.contact import N_AUX
+
 from .build import Builder
 from .data import Measured, RigData
 
@@ -269,13 +271,16 @@ class Problem:
             s0[:, self.slots] = start_values
         L = length or self.win.length
         states = np.empty((windows.size, L, s0.shape[1]))
-        aux = None
+        aux = np.full((windows.size, L, N_AUX), np.nan)
         for j, w in enumerate(windows):
             t0 = float(self.rt[self.win.starts[w]])
-            ch = sim.advance(s0[j], t0, self.h, self.n_sub, L, self.rt, self.rv)
+            self.rd.before_window(sim, self.m, int(self.win.starts[w]), s0[j])
+            try:
+                ch = sim.advance(s0[j], t0, self.h, self.n_sub, L, self.rt, self.rv)
+            except RuntimeError:  # the hybrid integrator gives up (a chattering contact): this window has no
+                states[j] = np.nan  # prediction, so its residuals are huge and a fit step that got here is refused
+                continue
             states[j] = ch.states
-            if aux is None:
-                aux = np.empty((windows.size, L, ch.aux.shape[1]))
             aux[j] = ch.aux
         pred = self.rd.predict(sim, states)
         meas = {k: v[windows, :L] for k, v in self.meas.items()}

@@ -10,15 +10,16 @@ least_squares, block-sparse Jacobian, soft-L1 loss. The order of the steps (f_s 
 scan of the levels the data pass through, alpha_drop from a grid, then the kinetic
 part, then everything, then refits) is belt_law.py's.
 
-Why not daq/models/shooting.py (multiple shooting, the models' fitter): it cannot run
-these windows without changes to shooting.py, models/data.py and sim/rigs.py, and a
-port would change what the windows are. Measured 2026-11-24 on the set of
+Why not daq/models/shooting.py (multiple shooting, the models' fitter): it answers another
+question. Since 2026-11-25 belt-ndof is in the model loop (models/data.py BeltData, decision
+21: a window's hybrid start from the data, the static level from the model's law and
+effects); this fitter identifies the law itself with a free break-away level per slip
+window, which the models' fitter does not have. Measured 2026-11-24 (before BeltData) on the set of
 tests/test_paper000.py (six one-mass records, 6 s at 250 Hz, seeds 0-5), with
 scripts that call this package, daq.models.data and daq.sim.rigs.BeltSim directly:
 
-- No belt-ndof data layer: ``daq.models.data.rig_data`` on the belt-ndof config
-  raises "model fitting is implemented for brake-2dof, drum-pendulum, not belt-ndof"
-  (decisions 0002 and 0011: belt-ndof is not in the model loop).
+- (then) No belt-ndof data layer: ``daq.models.data.rig_data`` on the belt-ndof config
+  raised "model fitting is implemented for brake-2dof, drum-pendulum, not belt-ndof".
 - A window's start is a hybrid state, not only a state vector: Problem.shoot calls
   ``SimRig.advance(s0, ...)`` with one ``BeltSim.hybrid`` for all windows (built
   slipping, stick clock at t = 0, carried from call to call); Problem's start values
