@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import os
 import random
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -262,3 +264,21 @@ if __name__ == "__main__":  # the longer fuzz run reported in the issue's closin
         base_text = write_csv(Path(d) / "base.csv", brake_columns(40)).read_text()
         rng_ = random.Random(2026)
         print(Counter(fuzz_case(rng_, Path(d), base_text) for _ in range(n)))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage"])
+def test_a_damaged_tdms_file_is_one_line_without_library_warnings(tmp_path, brake_model, damage):
+    """npTDMS logs warnings about damaged segments through its own loggers and handlers: they printed two lines
+    before the error (issue 16). A real process, since pytest would capture the log records itself."""
+    from nptdms import ChannelObject, GroupObject, TdmsWriter
+
+    path = tmp_path / "run.tdms"
+    with TdmsWriter(str(path)) as w:
+        w.write_segment([GroupObject("run"), *[ChannelObject("run", k, v) for k, v in brake_columns().items()]])
+    raw = path.read_bytes()
+    path.write_bytes(raw[: len(raw) // 2] if damage == "truncated" else b"TDSm" + bytes(range(256)) * 8)
+    for args in (("import", path, "--rig", "brake-2dof", "-o", tmp_path / "out.h5"),
+                 ("compare", path, "--rig", "brake-2dof", "--model", brake_model, "--no-history")):
+        r = subprocess.run([sys.executable, "-m", "daq.cli", *map(str, args)], capture_output=True, text=True)
+        assert r.returncode == 2 and r.stdout == "", r.stderr
+        one_line_error(r.stderr, str(path))

@@ -214,9 +214,13 @@ def read_text(path: str | Path) -> SourceFile:
 def open_tdms(path: str | Path) -> TdmsFile:
     """A TDMS file read whole; one InputError for a missing or damaged one."""
     src = str(path)
-    log = logging.getLogger("nptdms")
-    level = log.level
-    log.setLevel(logging.ERROR)  # its warnings about damaged segments would break the one-line error contract
+    # its warnings about damaged segments would break the one-line error contract; npTDMS's modules have loggers
+    # of their own (nptdms.reader, nptdms.tdms_segment, ...) with their own level and handler: quiet each
+    logs = [logging.getLogger(name) for name in ["nptdms", *logging.Logger.manager.loggerDict]
+            if name == "nptdms" or name.startswith("nptdms.")]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.ERROR)
     try:
         return TdmsFile.read(path)
     except FileNotFoundError as exc:
@@ -224,7 +228,8 @@ def open_tdms(path: str | Path) -> TdmsFile:
     except Exception as exc:  # nptdms raises assorted errors on a damaged file
         raise InputError(src, "(file)", f"not a readable TDMS file ({type(exc).__name__}: {exc})") from None
     finally:
-        log.setLevel(level)
+        for log, level in zip(logs, levels):
+            log.setLevel(level)
 
 
 def read_tdms(path: str | Path) -> SourceFile:
