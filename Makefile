@@ -12,7 +12,7 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed system-packages
 	$(BIN)/python -m pytest
 
-system-packages:  # old HDF5 readers (Octave, h5dump) for tests/test_old_readers.py; installs only what is missing
+system-packages:  # Octave + h5dump (tests/test_old_readers.py), Chromium + chromedriver (tests/test_web.py); only what is missing
 	bash deploy/system-packages.sh
 
 bench: $(VENV)/.installed

@@ -23,7 +23,7 @@ LAYERS: list[set[str]] = [
     {"daq.io", "drivers"},
     {"daq.sim", "daq.streaming"},
     {"daq.estimation", "daq.models", "sim_backends"},
-    {"daq.daemon"},
+    {"daq.daemon", "daq.web"},
     {"daq.analysis", "daq.bench", "daq.demo"},
     {"daq.cli"},
 ]

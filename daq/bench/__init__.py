@@ -19,6 +19,7 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "estimator": ("daq.bench.estimator", "bench_estimator", "format_estimator"),
     "bus": ("daq.bench.bus", "bench_bus", "format_bus"),
     "diagnose": ("daq.bench.diagnose", "bench_diagnose", "format_diagnose"),
+    "web": ("daq.bench.web", "bench_web", "format_web"),
 }
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import secrets
 import shutil
 import sys
 import time
@@ -48,6 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "if it still runs, else a temp dir)")
     p.add_argument("--state-dir", help="where the rig's session state and lock live (default DATA_DIR/.daq-daemon): "
                                        "how the last session ended")
+    p.add_argument("--web", metavar="[HOST:]PORT", help="serve the live page (docs/daemon.md); loopback unless "
+                                                        "--keys; PORT 0: any free port")
     p.set_defaults(func=cmd_daemon)
 
     c = sub.add_parser("ctl", help="talk to a running daemon: status, ramp, stop, estop, reset, record, note")
@@ -100,6 +104,26 @@ def server_keys(keys: str | None) -> dict[str, Path | None]:
             "observers_dir": obs if obs.is_dir() else None}
 
 
+def parse_web(value: str, curve: bool) -> tuple[str, int]:
+    """``--web [HOST:]PORT`` as (host, port): loopback by default, any other address only with CURVE keys."""
+    # heavy: zmq only when the command runs
+    from daq.daemon.control import is_local_endpoint
+
+    host, sep, port = value.rpartition(":")
+    host = host.strip("[]") if sep else ""
+    try:
+        number = int(port)
+    except ValueError:
+        raise InputError(value, "--web", "expected [HOST:]PORT") from None
+    if not 0 <= number <= 65535:
+        raise InputError(value, "--web", f"port {number} is not in 0..65535")
+    host = host or "127.0.0.1"
+    if not curve and not is_local_endpoint(f"tcp://{host}:0"):
+        raise InputError(value, "--web", f"refusing non-loopback {host!r} without CURVE keys (--keys): "
+                                           "bind to 127.0.0.1, or configure keys")
+    return host, number
+
+
 def cmd_daemon(args: argparse.Namespace) -> int:
     # heavy: zmq, pydantic and the daemon only when the command runs
     from pydantic import ValidationError
@@ -122,6 +146,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         check_endpoint_security(ccfg)
     except (ValidationError, ValueError) as exc:
         raise InputError(args.keys or args.control, "--control", str(exc).splitlines()[0]) from None
+    web_at = parse_web(args.web, ccfg.curve) if args.web else None
     state_dir = Path(args.state_dir) if args.state_dir else Path(args.data_dir) / STATE_DIR_NAME
     daemon = Daemon(DaemonCfg(rig=args.rig, sim=args.sim, sim_effects=args.effect, sim_time_scale=args.time_scale,
                               sim_seed=args.seed,
@@ -136,22 +161,46 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     if daemon.unclean is not None:
         print(f"daq daemon: WARNING: {daemon.unclean.summary()}; motion refused until `daq ctl reset`",
               file=sys.stderr, flush=True)
-    server = None
+    server = web = None
     try:
         server = ControlServer(daemon.handlers(), ccfg).start()
+        if web_at is not None:
+            web = _start_web(daemon, server, web_at, ccfg.curve)
         sim = f" sim_bench_pid={daemon.sim.pid} sim_control={daemon.sim.control}" if daemon.sim else ""
         est = f" estimator={daemon.estimator.endpoint}" if daemon.estimator else ""
         print(f"daq daemon: ready rig={daemon.rig.rig} control={server.endpoint} curve={ccfg.curve} "
-              f"bus={daemon.acq.endpoint}{est}{sim}", flush=True)
+              f"bus={daemon.acq.endpoint}{est}{sim}{f' web={web.url}' if web else ''}", flush=True)
         while not done.wait(0.5):
             pass
         print("daq daemon: signal received: controlled ramp-down, closing the recording", flush=True)
     finally:
+        if web is not None:
+            web.stop()
         if server is not None:
             server.stop()
         daemon.shutdown()
     print("daq daemon: stopped", flush=True)
     return 0
+
+
+def _start_web(daemon, server, at: tuple[str, int], curve: bool):
+    """The live page's process (daq/web/): on the daemon's bus, commanding through ``server.handle``.
+
+    With CURVE keys a page is an observer unless it gives the operator token made here and
+    printed once on stderr (the operator's link carries it in its ``#token=`` fragment)."""
+    # heavy: starlette only when --web is given
+    from daq.web.messages import WebCfg
+    from daq.web.process import WebProcess
+
+    token = secrets.token_urlsafe(24) if curve else None
+    also = [daemon.estimator.endpoint] if daemon.estimator else []
+    cfg = WebCfg(host=at[0], port=at[1], bus=daemon.acq.endpoint, also=also, rig=daemon.rig.rig, curve=curve,
+                 token=token, parent_pid=os.getpid())
+    web = WebProcess(cfg, server.handle, daemon.cfg.start_timeout_s)
+    if token:
+        print(f"daq daemon: web page {web.url} (observers); operator link, keep it secret: {web.url}#token={token}",
+              file=sys.stderr, flush=True)
+    return web
 
 
 # ----------------------------------------------------------------------------- ctl
@@ -269,7 +318,7 @@ def format_status(st: dict[str, Any]) -> str:
         last, fit = est.get("last") or {}, est.get("fit") or {}
         lines.append(f"estimator pid {est['pid']} {'alive' if est['alive'] else 'DEAD'}  "
                      f"{est.get('blocks_per_s', 0.0):.1f} blocks/s in  lost {est.get('lost_blocks', 0)}  "
-                     f"gaps {est.get('gaps', 0)}")
+                     f"gaps {est.get('gaps', 0)}  stick-slip cycles {est.get('cycles', 0)}")
         if last:
             lines.append(f"          F_est {_fmt(last.get('F_est'), '.3f')} N  "
                          f"mu_est {_fmt(last.get('mu_est'), '.3f')}  v_rel {_fmt(last.get('v_rel'))} m/s  "

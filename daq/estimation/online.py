@@ -12,6 +12,9 @@ Published (on its own Publisher):
     (publish time minus the input block's sent_host_time), plus rig extras;
   stream ``friction_fit``: one sample per fit (t = window end): n_points, rms, each
     free parameter and its standard error (``<name>_se``);
+  stream ``cycles``: one sample per stick–slip cycle (t = break-away time): break-away
+    force and mu, stick and slip time, slip distance, peak slip velocity (cycles.py),
+    published about 10 ms after the slip ends;
   events: ``estimator_started`` (delay, window, rate as JSON), ``friction_fit``
     (the RunningLawFit as JSON), ``estimator_gap`` (input gap: the window restarts).
 
@@ -38,6 +41,7 @@ from daq.streaming.bus import Publisher, Subscriber
 
 from .align import HoldBuffer, Pending
 from .core import EstimateBlock, EstimatorCfg, FrictionEstimator
+from .cycles import CYCLE_STREAM, CYCLE_UNITS, CycleDetector
 from .fit import FitData, RunningLawFit, fit_law
 from .rigmodels import RigModel, rig_model
 
@@ -54,6 +58,7 @@ class OnlineCfg(BaseModel):
     streams: tuple[str, ...] | None = Field(None, description="streams to subscribe to; None = all")
     out_stream: str = "estimator"
     fit_stream: str = "friction_fit"  # not "estimator_...": ZeroMQ subscriptions match by prefix
+    cycle_stream: str = CYCLE_STREAM
     source: str = "estimator"
     rate_hz: float | None = Field(None, gt=0.0, description="position stream rate; None = its StreamMeta")
     max_wait_s: float = Field(0.05, ge=0.0, description="how long a position sample waits for slower streams")
@@ -74,6 +79,7 @@ class OnlineStats(BaseModel):
     unaligned_dropped: int = 0
     fits_published: int = 0
     fits_failed: int = 0
+    cycles: int = 0
 
 
 class OnlineEstimator:
@@ -99,6 +105,9 @@ class OnlineEstimator:
         self._pending: Pending | None = None
         self._out_meta: StreamMeta | None = None
         self._fit_meta: StreamMeta | None = None
+        self.cycles = CycleDetector()
+        self._cycle_meta = StreamMeta(stream=online.cycle_stream, channels=tuple(CYCLE_UNITS),
+                                      units=tuple(CYCLE_UNITS.values()), rig=cfg.rig, source=online.source)
         self._executor = self._make_executor(online.fit)
         self._fit_future: Future | None = None
         self.last_fit: RunningLawFit | None = None
@@ -273,7 +282,19 @@ class OnlineEstimator:
         if est.size:
             self._publish(est, sent[est.newest - first])
             self.work_log.append(time.perf_counter() - w0)
+            self._detect_cycles(est, gap=self.fe.resets != resets)
         return est.size
+
+    def _detect_cycles(self, est: EstimateBlock, gap: bool) -> None:
+        """Stick–slip cycles completed in these estimates, as one block of the cycles stream (after the estimates)."""
+        if gap:  # what happened in the gap is unknown: start afresh after the last jump in time
+            self.cycles.reset()
+            jumps = np.flatnonzero(np.diff(est.t) > 1.5 * self.fe.dt)
+            est = est if jumps.size == 0 else _tail(est, int(jumps[-1]) + 1)
+        done = self.cycles.feed(est.t, est.F, est.N, est.v_rel, est.slip)
+        if done:
+            self.pub.publish(self._cycle_meta, np.array([c.t for c in done]), np.array([c.row() for c in done]))
+            self.stats.cycles += len(done)
 
     def _publish(self, est: EstimateBlock, sent: np.ndarray) -> None:
         """One output block per processed batch; latency = now minus the carrying input block's send time."""
@@ -339,3 +360,9 @@ class OnlineEstimator:
         self.pub.publish(self._fit_meta, np.array([r.t_end]), np.array([row], dtype=float))
         self.stats.fits_published += 1
         self.last_fit = r
+
+
+def _tail(est: EstimateBlock, i: int) -> EstimateBlock:
+    """The estimates from index ``i`` on."""
+    return EstimateBlock(est.index[i:], est.t[i:], est.F[i:], est.N[i:], est.mu[i:], est.v_rel[i:], est.a[i:],
+                         est.slip[i:], est.growing[i:], est.newest[i:], {k: v[i:] for k, v in est.extra.items()})

@@ -12,6 +12,9 @@ milliseconds in which a kill leaves a file that ``daq.io.interchange.read_h5`` s
 opens (or ``daq.io.h5recover.recover`` repairs), and a reader that opens the file just
 then sees it as a finished file. Declare streams up front to avoid the reopen.
 
+Streams named in ``WriterCfg.root_tables`` (the estimator's ``cycles``: one row per stick–slip
+cycle) are written the same way, as a root group (``/cycles``) beside ``/streams`` and ``/events``.
+
 The recorder process (daq/streaming/recorder.py) feeds it from the bus; ``daq import``
 (daq/io/importer.py) writes imported files through it too, so both make the same file.
 
@@ -51,6 +54,8 @@ class WriterCfg(BaseModel):
     min_chunk: int = Field(1024, ge=16)
     max_chunk: int = Field(65536, ge=16, description="elements per chunk (65536 float64 = 512 KiB)")
     event_chunk: int = Field(1024, ge=16)
+    root_tables: tuple[str, ...] = Field(("cycles",), description="streams stored as a root group beside /streams "
+                                                                   "(one row per event, e.g. stick-slip cycles)")
 
 
 class BlockRejected(DaqError, ValueError):
@@ -221,7 +226,7 @@ class RunWriter:
         f = self.f
         for name, sink in self._sinks.items():
             if sink.pending_rows:
-                self._write_stream(f["streams"][name], sink)
+                self._write_stream(self._parent(name)[name], sink)
         if self._events:
             rows = np.array(self._events, dtype=EVENT_DTYPE)
             ds = f["events"]
@@ -274,13 +279,22 @@ class RunWriter:
             for sink in sinks:
                 self.on_new_stream(sink.meta.stream)
 
+    def _parent(self, stream: str) -> h5py.Group:
+        """Where a stream's group lives: /streams, or the root for a table stream (``/cycles``).
+
+        Why the root: a cycle table has one row per stick–slip cycle, not samples of a signal;
+        beside /streams, readers that take every stream for a signal (export, models) leave it alone.
+        """
+        assert self.f is not None
+        return self.f if stream in self.cfg.root_tables else self.f["streams"]
+
     def _create(self, meta: StreamMeta, has_device_t: bool) -> None:
         assert self.f is not None
         sink = self._sinks.get(meta.stream)
         if sink is None:
             sink = self._sinks[meta.stream] = _Sink(meta, has_device_t)
         rows = _chunk_rows(meta, self.cfg)
-        g = self.f["streams"].create_group(meta.stream)
+        g = self._parent(meta.stream).create_group(meta.stream)
         g.attrs["source"] = meta.source
         g.attrs["rate_hz"] = meta.rate_hz if meta.rate_hz is not None else math.nan
         g.attrs["channels"] = list(meta.channels)

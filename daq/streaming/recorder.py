@@ -1,6 +1,7 @@
 """The crash-safe recorder process: bus blocks and events -> one HDF5 file per run.
 
-A deep-queued subscriber feeds a :class:`daq.io.runfile.RunWriter` (SWMR HDF5, flushed every
+A deep-queued subscriber feeds a :class:`daq.io.runfile.RunWriter` (streams under ``/streams``, events in
+``/events``, the estimator's stick–slip cycles as the table ``/cycles``; SWMR HDF5, flushed every
 0.25 s: a kill -9 loses at most that much, see the writer's docstring and
 docs/decisions/0004-swmr-hdf5-periodic-flush.md). Own process, so acquisition and the
 estimator never wait for the disk.
