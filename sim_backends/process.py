@@ -115,7 +115,7 @@ def _serve(args: argparse.Namespace) -> int:
                     break
                 else:
                     sock.send_string(json.dumps({"ok": False, "error": "ops: status, exit"}))
-            if args.owner_pid and not _alive(args.owner_pid):
+            if args.owner_pid and not pid_alive(args.owner_pid):
                 now = time.monotonic()
                 rest_since = (rest_since or now) if hw.rig.belt_speed <= STANDSTILL else None
                 if rest_since is not None and now - max(rest_since, last_asked) > args.linger_s:
@@ -137,14 +137,20 @@ def _status(hw) -> dict[str, Any]:
     return out
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int | None) -> bool:
+    """True if process ``pid`` runs: a zombie (dead, not yet reaped by its parent) counts as gone, as does no pid.
+
+    The one copy for the daemon's session state, the campaign's supervision and the simulated bench's owner check.
+    """
+    if not pid:
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
+    except PermissionError:  # someone else's process: it exists
         return True
-    try:  # a zombie (dead, not yet reaped by its parent) counts as gone
+    try:
         with open(f"/proc/{pid}/stat") as f:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:

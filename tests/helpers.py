@@ -22,3 +22,10 @@ def expect_error(exc: InputError, source: str, field: str, *fragments: str) -> N
     assert exc.message
     for frag in fragments:
         assert frag in exc.message, (frag, text)
+
+
+def ramp_text(hold_s: float, stop: bool = True) -> str:
+    """A ramp file for the daemon tests: 0.5 s up to 0.15 m/s, a hold, and (``stop``) 0.5 s down to rest."""
+    text = ('start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.5\nto_m_per_s = 0.15\n'
+            f'[[segment]]\nkind = "hold"\nduration_s = {hold_s}\n')
+    return text + ('[[segment]]\nkind = "linear"\nduration_s = 0.5\nto_m_per_s = 0.0\n' if stop else "")

@@ -255,7 +255,6 @@ def test_fuzzed_files_end_in_a_result_or_one_input_error(tmp_path):
 
 
 if __name__ == "__main__":  # the longer fuzz run reported in the closing note
-    import sys
     import tempfile
     from collections import Counter
 

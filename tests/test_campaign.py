@@ -25,10 +25,11 @@ import h5py
 import pytest
 
 from daq.analysis.campaign.state import CampaignCfg, load_state, new_state, save_state
-from daq.analysis.campaign.supervision import _alive, _cmdline
+from daq.analysis.campaign.supervision import _cmdline
 from daq.cli.campaign import _confirm_factory
 from daq.cli.main import main
 from daq.errors import InputError
+from sim_backends.process import pid_alive
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUE = {"D": 1.5, "E": 0.09981645}
@@ -54,7 +55,7 @@ def _end_everything(out: Path) -> None:
     st = _state(out)
     for d in st.get("daemons", []):
         for pid, what in ((d.get("pid"), "daemon"), (d.get("sim_bench_pid"), "sim_backends")):
-            if pid and _alive(pid) and what in _cmdline(pid):
+            if pid and pid_alive(pid) and what in _cmdline(pid):
                 os.kill(pid, signal.SIGKILL)
 
 
@@ -99,7 +100,7 @@ def test_campaign_killed_after_first_cell_resumes_without_redoing_it(tmp_path):
         summary = json.loads(r.stdout)
         assert summary["done"] == 4 and not summary["failed"]
         assert "resuming: 1/4 cells finished" in r.stderr
-        assert not _alive(daemon_pid) and "daq daemon: stopped" in log.read_text()
+        assert not pid_alive(daemon_pid) and "daq daemon: stopped" in log.read_text()
 
         st = load_state(out / "campaign.json")
         c1, c2, c3, c4 = st.cells
@@ -127,7 +128,7 @@ def test_campaign_killed_after_first_cell_resumes_without_redoing_it(tmp_path):
         # every daemon and bench the campaign started is gone
         assert len(st.daemons) == 3 and st.daemon is None
         for d in st.daemons:
-            assert not _alive(d.pid) and not _alive(d.sim_bench_pid)
+            assert not pid_alive(d.pid) and not pid_alive(d.sim_bench_pid)
         # the table and the grid figure
         rows = (out / "table.csv").read_text().strip().splitlines()
         assert len(rows) == 5 and rows[0].startswith("thrust_N,v0_m_per_s,status,A,A_se")

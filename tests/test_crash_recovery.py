@@ -23,7 +23,7 @@ from pathlib import Path
 
 import h5py
 import pytest
-from test_daemon_e2e import LONG, SHORT, DaemonProc, _kinds, _wait_for, _wait_gone
+from test_daemon_e2e import SHORT, DaemonProc, _kinds, _wait_for, _wait_gone
 
 from daq.cli.daemon import format_status
 from daq.daemon.ramp_runner import RampRunner
@@ -59,12 +59,8 @@ def killed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("crash")
     d = DaemonProc(tmp)
     try:
-        ramp = tmp / "long.toml"
-        ramp.write_text(LONG)
         out = tmp / "killed.h5"
-        assert d.ctl("record", "start", "--path", str(out)).returncode == 0
-        assert d.ctl("ramp", str(ramp), "--no-wait").returncode == 0
-        _wait_for(lambda: d.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+        d.run_long_ramp(out)
         st = d.status()
         children = [st["estimator"]["pid"], st["recording"]["pid"]]
         os.kill(d.proc.pid, signal.SIGKILL)

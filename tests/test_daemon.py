@@ -11,19 +11,9 @@ from daq.errors import InputError
 from daq.io.interchange import read_recording
 from daq.ramps import seed_ramp
 
-RAMP = """start_m_per_s = 0.0
-[[segment]]
-kind = "linear"
-duration_s = 0.5
-to_m_per_s = 0.15
-[[segment]]
-kind = "hold"
-duration_s = 1.0
-[[segment]]
-kind = "linear"
-duration_s = 0.5
-to_m_per_s = 0.0
-"""
+from helpers import ramp_text
+
+RAMP = ramp_text(1.0)
 
 
 def test_run_sim_ramp_records_every_channel_the_estimator_and_reports_progress(tmp_path):

@@ -25,31 +25,13 @@ import zmq
 
 from daq.config import load_rig
 from daq.daemon.control import FORBIDDEN, ControlClient, Reply
-from sim_backends.process import request as sim_request
+from sim_backends.process import pid_alive, request as sim_request
+
+from helpers import ramp_text
 
 ROOT = Path(__file__).resolve().parent.parent
-SHORT = """start_m_per_s = 0.0
-[[segment]]
-kind = "linear"
-duration_s = 0.5
-to_m_per_s = 0.15
-[[segment]]
-kind = "hold"
-duration_s = 1.5
-[[segment]]
-kind = "linear"
-duration_s = 0.5
-to_m_per_s = 0.0
-"""
-LONG = """start_m_per_s = 0.0
-[[segment]]
-kind = "linear"
-duration_s = 0.5
-to_m_per_s = 0.15
-[[segment]]
-kind = "hold"
-duration_s = 120.0
-"""
+SHORT = ramp_text(1.5)
+LONG = ramp_text(120.0, stop=False)
 TOO_FAST = 'start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.1\nto_m_per_s = 0.4\n'
 START_S = 180.0  # first start compiles/loads numba caches; a loaded CI machine is slow
 
@@ -94,6 +76,15 @@ class DaemonProc:
     def ctl(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
         return daq("ctl", "--endpoint", self.endpoint, *args, timeout=timeout)
 
+    def run_long_ramp(self, record: Path | None = None) -> None:
+        """Start recording to ``record`` (if given) and the long ramp, and wait until the belt is at speed."""
+        ramp = self.tmp / "long.toml"
+        ramp.write_text(LONG)
+        if record is not None:
+            assert self.ctl("record", "start", "--path", str(record)).returncode == 0
+        assert self.ctl("ramp", str(ramp), "--no-wait").returncode == 0
+        _wait_for(lambda: self.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+
     def status(self) -> dict:
         r = self.ctl("status", "--json")
         assert r.returncode == 0, r.stderr
@@ -111,34 +102,22 @@ class DaemonProc:
                 self.proc.kill()
                 self.proc.wait()
         try:  # the bench outlives the daemon by design: end it (unless a later daemon on it already did)
-            if _alive(self.sim_pid):
+            if pid_alive(self.sim_pid):
                 sim_request(self.sim_control, "exit", timeout_s=2.0)
         except TimeoutError:
             pass
         _wait_gone(self.sim_pid, 10.0)
-        if _alive(self.sim_pid):
+        if pid_alive(self.sim_pid):
             os.kill(self.sim_pid, signal.SIGKILL)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def _wait_gone(pid: int, timeout: float) -> bool:
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
-        if not _alive(pid):
+        if not pid_alive(pid):
             return True
         time.sleep(0.05)
-    return not _alive(pid)
+    return not pid_alive(pid)
 
 
 def _wait_for(pred, timeout: float, what: str):
@@ -298,10 +277,7 @@ def test_kill9_of_the_recorder_status_says_so_the_file_opens_and_a_new_recording
 
 
 def test_after_stop_status_commands_0_and_measures_the_belt_at_rest(daemon):
-    ramp = daemon.tmp / "long.toml"
-    ramp.write_text(LONG)
-    assert daemon.ctl("ramp", str(ramp), "--no-wait").returncode == 0
-    _wait_for(lambda: daemon.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+    daemon.run_long_ramp()
     assert daemon.status()["belt"]["commanded"] == pytest.approx(0.15)
     assert daemon.ctl("stop").returncode == 0
     st = _wait_for(lambda: abs((s := daemon.status())["belt"]["measured"]) < 2e-3 and s, 30, "the belt at rest")
@@ -315,12 +291,8 @@ def test_after_stop_status_commands_0_and_measures_the_belt_at_rest(daemon):
 def test_sigterm_ramps_down_exits_0_and_closes_the_recording(tmp_path):
     d = DaemonProc(tmp_path)
     try:
-        ramp = tmp_path / "long.toml"
-        ramp.write_text(LONG)
         out = tmp_path / "term.h5"
-        assert d.ctl("record", "start", "--path", str(out)).returncode == 0
-        assert d.ctl("ramp", str(ramp), "--no-wait").returncode == 0
-        _wait_for(lambda: d.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+        d.run_long_ramp(out)
         d.proc.send_signal(signal.SIGTERM)
         assert d.proc.wait(60) == 0
         assert any("controlled ramp-down" in line for line in d.rest)

@@ -575,22 +575,19 @@ class Daemon:
                         float(args.get("time_scale", 1.0)))
         return {"started": path, "duration_s": self.runner.duration}
 
-    def handle_stop(self, args: dict) -> dict:
+    def _halt(self, how: str, detail: str) -> None:
+        """Stop (``how`` = "stop": a controlled ramp-down) or e-stop the belt, through the ramp if one runs."""
         self._halted = True
-        if self.runner is not None and self.runner.running:
-            self.runner.stop()
-        else:
-            self.drivers.motor.stop()
-        self.acq.publish_event("stop", "operator", "controlled stop")
+        target = self.runner if self.runner is not None and self.runner.running else self.drivers.motor
+        getattr(target, how)()
+        self.acq.publish_event(how, "operator", detail)
+
+    def handle_stop(self, args: dict) -> dict:
+        self._halt("stop", "controlled stop")
         return {"stopping": True}
 
     def handle_estop(self, args: dict) -> dict:
-        self._halted = True
-        if self.runner is not None and self.runner.running:
-            self.runner.estop()
-        else:
-            self.drivers.motor.estop()
-        self.acq.publish_event("estop", "operator", "emergency stop")
+        self._halt("estop", "emergency stop")
         self._read_regulator()
         return {"estop": True}
 

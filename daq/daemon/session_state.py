@@ -38,7 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from daq.errors import DaqError, InputError
 from daq.io.h5recover import is_unclean
 from daq.io.runfile import recover_run
-from sim_backends.process import request as bench_request
+from sim_backends.process import pid_alive, request as bench_request
 
 STATE_DIR_NAME = ".daq-daemon"  # under the data directory, unless --state-dir
 HEARTBEAT_S = 2.0  # how often last_alive_at is refreshed: the bound on "when did it end"
@@ -52,21 +52,6 @@ def utcnow() -> _dt.datetime:
 def local(t: _dt.datetime | None) -> str:
     """A stored UTC time as the operator's local wall clock, to the second."""
     return "?" if t is None else t.astimezone().strftime("%Y-%m-%d %H:%M:%S")
-
-
-def pid_alive(pid: int) -> bool:
-    """True if ``pid`` runs (a zombie, dead but not reaped, counts as gone)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return True
 
 
 def pid_runs(pid: int, module: str) -> bool:

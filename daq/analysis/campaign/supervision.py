@@ -21,7 +21,7 @@ import zlib
 from pathlib import Path
 from typing import Callable
 
-from sim_backends.process import request as sim_request
+from sim_backends.process import pid_alive, request as sim_request
 
 from .state import DaemonInfo
 
@@ -39,20 +39,6 @@ def _die_with_parent() -> None:
         pass
 
 
-def _alive(pid: int | None) -> bool:
-    if not pid:
-        return False
-    try:
-        os.kill(pid, 0)
-    except (ProcessLookupError, PermissionError):
-        return False
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return True
-
-
 def _cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode("utf-8", "replace")
@@ -63,10 +49,10 @@ def _cmdline(pid: int) -> str:
 def _wait_gone(pid: int | None, timeout: float) -> bool:
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
-        if not _alive(pid):
+        if not pid_alive(pid):
             return True
         time.sleep(0.1)
-    return not _alive(pid)
+    return not pid_alive(pid)
 
 
 def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
@@ -74,7 +60,7 @@ def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
     if info is None:
         return
 
-    if _alive(info.pid) and "daemon" in _cmdline(info.pid):
+    if pid_alive(info.pid) and "daemon" in _cmdline(info.pid):
         say(f"campaign: waiting for the daemon of the interrupted run (pid {info.pid}) to ramp down and exit")
         if not _wait_gone(info.pid, 2.0):  # it got SIGTERM from the kernel when we died; give it time
             os.kill(info.pid, signal.SIGTERM)
@@ -82,7 +68,7 @@ def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
                 os.kill(info.pid, signal.SIGKILL)
                 _wait_gone(info.pid, 5.0)
     bench = info.sim_bench_pid
-    if bench and _alive(bench) and "sim_backends" in _cmdline(bench) and not _wait_gone(bench, 5.0):
+    if bench and pid_alive(bench) and "sim_backends" in _cmdline(bench) and not _wait_gone(bench, 5.0):
         if info.sim_control:
             try:
                 sim_request(info.sim_control, "exit", timeout_s=1.0)
