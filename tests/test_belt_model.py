@@ -104,3 +104,45 @@ def test_belt_model_files_round_trip(tmp_path):
     path = tmp_path / "m.toml"
     save_model(seed_model("belt-ndof"), path)
     assert "pwl-000" in path.read_text()
+
+
+def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(tmp_path):
+    """The user's path on a lab-frame record (a MATLAB file holding t and F/mg only, noise and quantisation):
+    rig file edited -> import --map (the driver's speed steps as arithmetic of t) -> model init -> compare. The
+    contact is nothing like the config's law (f_s0 0.62, f_k0 0.45 against 1.33, 1.0); from the config's values
+    alone the fit stopped at 1061 um against a 2.4 um floor. The law's levels guessed from the data (the spring
+    force at the end of each stick, and over the slips) are a start of their own, reported in the JSON."""
+    import json
+
+    import scipy.io
+
+    from daq.cli.main import main as daq
+
+    t = np.arange(16 * 500) / 500.0
+    steps = "4e-3 - 3e-3*min(1, max(0, (t - 8)*1000))"
+
+    def drive(tt: float) -> float:
+        return 4e-3 - 3e-3 * min(1.0, max(0.0, (tt - 8) * 1000))
+
+    e = slider_simulate(Slider(M, K, M * G, f_s0=0.62, f_k0=0.45, k_fall=0.1, b=0.0), drive, t)
+    rng = np.random.default_rng(2)
+    f_over_mg = np.round((K * e / (M * G) + rng.normal(0, 5e-4, t.size)) / 1e-3) * 1e-3
+    scipy.io.savemat(tmp_path / "slider.mat", {"t": t, "F_over_mg": f_over_mg})
+    rig = slider_rig(tmp_path)
+    rig.write_text(rig.read_text().replace("noise_std = 2e-5\nlsb = 1e-5", f"noise_std = {5e-4 * M * G / K:.3g}\n"
+                                           f"lsb = {1e-3 * M * G / K:.3g}", 1).replace("rate_Hz = 250.0", "rate_Hz = 500.0"))
+    h5, model = tmp_path / "slider.h5", tmp_path / "model.toml"
+    assert daq(["import", str(tmp_path / "slider.mat"), "--rig", str(rig), "--map", f"x1=F_over_mg*{M}*{G}/{K}",
+                "--map", f"vb={steps}", "-o", str(h5)]) == 0
+    assert daq(["model", "init", str(rig), "-o", str(model)]) == 0
+    assert daq(["compare", str(h5), "--model", str(model), "--no-history", "--report", str(tmp_path / "cmp")]) == 0
+    res = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert abs(res["start_from_data"]["friction.f_s0"] - 0.62) < 0.05
+    assert abs(res["start_from_data"]["friction.f_k0"] - 0.45) < 0.05
+    law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0", "k_fall")}
+    assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45, "k_fall": 0.1}, rel=0.03), law
+    fast = next(v["error"] for k, v in res["by_regime"].items() if k.startswith("belt speed 4-4"))
+    assert fast < 1.5 * res["noise_floor"], (fast, res["noise_floor"])
+    # at the slow speed (1 mm/s: a break-away 4x more sensitive to the static level) 7x the floor is left,
+    # cause not found yet (the closing note of 2026-11-25); the whole record within 10x, not 300x as before
+    assert res["error"] < 10.0 * res["noise_floor"], (res["error"], res["noise_floor"])

@@ -83,6 +83,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     out: dict = {
         "data": session.source,
         "filled_samples": session.rec.meta.get("filled", {}),
+        "start_from_data": session.law_guess,
         "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
         "model": fitted.model.describe(),
         "model_digest": fitted.model.digest(),

@@ -323,6 +323,7 @@ class Diagnosis:
         return {
             "data": session.source,
             "filled_samples": session.rec.meta.get("filled", {}),
+            "start_from_data": session.law_guess,
             "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
             "model": self.base.model.describe(),
             "error": e0,
