@@ -143,6 +143,6 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45, "k_fall": 0.1}, rel=0.03), law
     fast = next(v["error"] for k, v in res["by_regime"].items() if k.startswith("belt speed 4-4"))
     assert fast < 1.5 * res["noise_floor"], (fast, res["noise_floor"])
-    # at the slow speed (1 mm/s: a break-away 4x more sensitive to the static level) 7x the floor is left,
-    # cause not found yet (the closing note of 2026-11-25); the whole record within 10x, not 300x as before
+    # 32 of 34 windows sit at the floor; two held-out ones (the one holding the driver's step, one after a 0.9 s
+    # stick) keep ~50 um after one slip: cause not found yet (decision 21); the record within 10x, not 300x
     assert res["error"] < 10.0 * res["noise_floor"], (res["error"], res["noise_floor"])
