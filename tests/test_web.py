@@ -12,7 +12,9 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -268,3 +270,22 @@ def test_an_observers_page_has_no_working_command(rig, browser):
     assert after["regulator"]["state"] == before["regulator"]["state"]
     assert "observer was here" not in browser.find_element("id", "events").text
     assert after["motion"]["allowed"]
+
+
+def test_a_dead_web_process_is_reported_and_acquisition_goes_on(tmp_path):
+    """kill -9 of the page's process: status (text and JSON) says so within 2 s, an event is published, the daemon
+    and its streams go on (issue 15's closing note of 2026-11-25: the daemon did not watch its web process)."""
+    d = DaemonProc(tmp_path, "--web", "127.0.0.1:0")
+    try:
+        web = d.status()["web"]
+        assert web["alive"] and web["url"].startswith("http://127.0.0.1:")
+        os.kill(web["pid"], signal.SIGKILL)
+        st = _wait_for(lambda: (s := d.status())["web"]["alive"] is False and s, 2.0, "status to say the page died")
+        assert st["web"]["exit"] == -signal.SIGKILL
+        assert "web page" in d.ctl("status").stdout and "ENDED (exit -9)" in d.ctl("status").stdout
+        assert any("web page process ended unexpectedly" in line for line in d.err)
+        time.sleep(1.2)  # a fresh one-second rate window, all of it after the kill
+        rates = {k: v["rate_hz"] for k, v in d.status()["streams"].items()}
+        assert rates and all(r > 0 for r in rates.values()), rates  # acquisition goes on
+    finally:
+        d.close()

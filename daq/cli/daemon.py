@@ -196,7 +196,13 @@ def _start_web(daemon, server, at: tuple[str, int], curve: bool):
     also = [daemon.estimator.endpoint] if daemon.estimator else []
     cfg = WebCfg(host=at[0], port=at[1], bus=daemon.acq.endpoint, also=also, rig=daemon.rig.rig, curve=curve,
                  token=token, parent_pid=os.getpid())
-    web = WebProcess(cfg, server.handle, daemon.cfg.start_timeout_s)
+    def ended(code: int) -> None:  # acquisition and recording do not depend on the page: say so, go on
+        detail = f"the web page process ended unexpectedly (exit {code}); acquisition and recording go on"
+        print(f"daq daemon: {detail}", file=sys.stderr, flush=True)
+        daemon.acq.publish_event("web_died", "daemon", detail)
+
+    web = WebProcess(cfg, server.handle, daemon.cfg.start_timeout_s, on_exit=ended)
+    daemon.web = web
     if token:
         print(f"daq daemon: web page {web.url} (observers); operator link, keep it secret: {web.url}#token={token}",
               file=sys.stderr, flush=True)
@@ -313,6 +319,10 @@ def format_status(st: dict[str, Any]) -> str:
         lines.append(f"  source {name:16s} {s['state']:12s} lost frames {s['lost_frames']}  "
                      f"checksum errors {s['checksum_errors']}  reconnects {s['reconnects']}")
     lines.append("drops     " + "  ".join(f"{k} {v}" for k, v in st.get("drops", {}).items()))
+    web = st.get("web")
+    if web:
+        lines.append(f"web page  {web['url']}  pid {web['pid']} "
+                     + ("alive" if web["alive"] else f"ENDED (exit {web['exit']}): the page is gone"))
     est = st.get("estimator")
     if est:
         last, fit = est.get("last") or {}, est.get("fit") or {}

@@ -257,6 +257,7 @@ class Daemon:
         self.rig = load_rig(cfg.rig)
         self.sim = None  # SimBenchProcess with --sim
         self.estimator: EstimatorProcess | None = None
+        self.web = None  # the live page's process (daq.web.process.WebProcess), set by `daq daemon --web`
         self.monitor: EstimateMonitor | None = None
         self.runner: RampRunner | None = None
         self.recorder: RecorderProcess | None = None
@@ -516,6 +517,9 @@ class Daemon:
         if rec is not None:
             out["recording"] = {"path": str(rec.path), "pid": rec.pid, "alive": rec.alive, "progress": rec.progress}
             drops["recorder_lost_blocks"] = rec.lost_blocks() or 0
+        if self.web is not None:
+            out["web"] = {"url": self.web.url, "pid": self.web.pid, "alive": self.web.alive,
+                          "exit": self.web.proc.returncode}
         if self.sim is not None:
             out["sim_bench"] = {"pid": self.sim.pid, "control": self.sim.control, "alive": self.sim.alive(),
                                 "attached": isinstance(self.sim, AttachedSimBench)}

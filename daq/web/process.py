@@ -34,8 +34,11 @@ Command = Callable[[bytes, Role], Reply]  # ControlServer.handle
 class WebProcess:
     """``python -m daq.web.server`` with ``cfg``; its control requests go to ``command``."""
 
-    def __init__(self, cfg: WebCfg, command: Command, timeout: float) -> None:
+    def __init__(self, cfg: WebCfg, command: Command, timeout: float,
+                 on_exit: Callable[[int], None] | None = None) -> None:
         self.command = command
+        self.on_exit = on_exit  # called with the exit code when the process ends without stop()
+        self._stopping = False
         self.proc = subprocess.Popen([sys.executable, "-m", "daq.web.server"], cwd=str(ROOT), text=True,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self.pid = self.proc.pid
@@ -55,6 +58,10 @@ class WebProcess:
             except ValidationError:
                 continue
             self._pool.submit(self._run, cmd)
+        # its stdout closed: the process ended; if nobody asked it to, the daemon must say so (the page is gone)
+        code = self.proc.wait()
+        if not self._stopping and self.on_exit is not None:
+            self.on_exit(code)
 
     def _run(self, cmd: PipeCommand) -> None:
         reply = self.command(cmd.request.encode(), cmd.role)
@@ -71,6 +78,7 @@ class WebProcess:
         return self.proc.poll() is None
 
     def stop(self) -> None:
+        self._stopping = True
         _terminate(self.proc, 10)
         with self._lock:
             try:
