@@ -8,14 +8,17 @@ before any derivative is taken, without touching clean records.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.io
 
-from daq.config import load_rig
-from daq.io.interchange import Recording
+from daq.cli.main import main as daq
+from daq.config import load_rig, rig_path
+from daq.io.interchange import Recording, write_csv
 from daq.models.data import rig_data, stuck_by_hysteresis
 from daq.models.session import Session
 from daq.models.spec import save_model, seed_model
@@ -33,8 +36,6 @@ M, K, G = 0.05, 200.0, 9.81
 
 def slider_rig(tmp_path: Path) -> Path:
     """The spring-slider of docs/examples/spring-slider.md as a user's belt-ndof rig file."""
-    from daq.config import rig_path
-
     text = rig_path("belt-ndof").read_text()
     text = text.replace("mass_kg = 0.5", f"mass_kg = {M}").replace("normal_force_N = 4.905", f"normal_force_N = {M * G}")
     path = tmp_path / "slider-rig.toml"
@@ -64,8 +65,6 @@ def test_the_seed_model_on_its_own_simulation_sits_at_the_noise_floor(tmp_path):
     cfg = load_rig("belt-ndof")
     rec = simulate_rig(cfg, duration=8.0, seed=3)
     data = tmp_path / "belt.csv"
-    from daq.io.interchange import write_csv
-
     write_csv(rec, data)
     model = seed_model("belt-ndof")
     s = Session.open(data, model)
@@ -100,6 +99,16 @@ def test_spikes_are_repaired_and_counted_and_clean_records_untouched():
     assert np.max(np.abs(m.outputs["x1"] - clean.outputs["x1"])) < 10 * clean.sigma["x1"]
 
 
+def test_quantisation_steps_of_a_noise_free_creep_are_not_spikes():
+    """A slow creep read through a coarse quantiser: third differences mostly 0, so the data's noise estimate is 0;
+    the instrument's declared noise is the floor, and no step is taken for a spike (22 of 2000 were)."""
+    rd = rig_data(load_rig("belt-ndof"))
+    t = np.arange(2000) / 250.0
+    x = np.round(2e-5 * t / 1e-5) * 1e-5
+    y, idx = rd._despike("x1", x)
+    assert idx.size == 0 and np.array_equal(y, x)
+
+
 def test_belt_model_files_round_trip(tmp_path):
     path = tmp_path / "m.toml"
     save_model(seed_model("belt-ndof"), path)
@@ -112,12 +121,6 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     contact is nothing like the config's law (f_s0 0.62, f_k0 0.45 against 1.33, 1.0); from the config's values
     alone the fit stopped at 1061 um against a 2.4 um floor. The law's levels guessed from the data (the spring
     force at the end of each stick, and over the slips) are a start of their own, reported in the JSON."""
-    import json
-
-    import scipy.io
-
-    from daq.cli.main import main as daq
-
     t = np.arange(16 * 500) / 500.0
     steps = "4e-3 - 3e-3*min(1, max(0, (t - 8)*1000))"
 
