@@ -4,13 +4,16 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench env clean system-packages
+.PHONY: demo test acceptance bench env clean system-packages
 
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
 test: $(VENV)/.installed system-packages
 	$(BIN)/python -m pytest
+
+acceptance: $(VENV)/.installed  # the long acceptance runs (tests/long, minutes each), outside `make test`
+	$(BIN)/python -m pytest tests/long
 
 system-packages:  # Octave + h5dump (tests/test_old_readers.py), Chromium + chromedriver (tests/test_web.py); only what is missing
 	bash deploy/system-packages.sh

@@ -12,11 +12,12 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import diagnose, fit_extensions, own_share, passes, score
+from daq.models.diagnose import MIN_T, diagnose, fit_extensions, own_share, passes, score, windows_needed, z_attainable
 from daq.models.session import Session
 from daq.models.spec import remove_effect, seed_model
 from daq.sim.effectset import parse_effect
@@ -137,3 +138,15 @@ def test_a_candidate_does_not_take_the_credit_for_iterations_its_base_fit_lacked
     assert passes(sc), sc  # the step gates alone would take it
     assert not own_share(s, short, short, sc, floor)
     assert sc.fit_only and sc.error_neutral < 1.2 * sc.error < short.rms("x1")
+
+
+def test_the_fewest_held_out_windows_that_can_pass_the_consistency_gate():
+    """The summary's 'too few held-out windows' is arithmetic of the Wilcoxon test: n windows all improving give
+    p = 2^-n, so the z a record can reach at most is isf(2^-n); checked against scipy's own exact test."""
+    from scipy import stats
+
+    n = windows_needed()
+    assert z_attainable(n) >= MIN_T > z_attainable(n - 1)
+    for k in (n - 1, n):
+        p = stats.wilcoxon(np.arange(1.0, k + 1), alternative="greater").pvalue
+        assert z_attainable(k) == pytest.approx(stats.norm.isf(p), rel=1e-9)

@@ -208,8 +208,10 @@ def test_a_models_own_fit_goes_on_past_its_iteration_limit_while_it_converges(br
     s = Session(rec, "sim", brake_cfg, max_windows=30)
     m = add_effect(seed_model("brake-2dof"), "accel-sign")
     short = s.fit(m, max_iter=3, converge=False)
-    assert not short.fit.success and short.fit.message == "iteration limit"
+    assert not short.fit.success and short.fit.message.startswith("iteration limit")
     full = s.fit(m, max_iter=3)  # a model's own fit: converge by default
     assert "after 3 iterations" in full.fit.message
-    assert full.fit.cost < 0.97 * short.fit.cost  # (seen: 4405 against 4649)
+    # (seen: 4405 against 4649 before the chain's refit from the file's values, decision 22, which gives the short fit
+    # a second 3-iteration run of its own: 4405 against 4406 now; the converged one is never higher, and converged)
+    assert full.fit.success and full.fit.cost <= short.fit.cost * (1 + 1e-9)
     assert full.values["effects.accel-sign.amp"] == pytest.approx(0.15, abs=0.02)

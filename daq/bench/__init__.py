@@ -23,9 +23,10 @@ BENCHES: dict[str, tuple[str, str, str]] = {
 }
 
 
-def run_bench(name: str) -> tuple[dict, str]:
-    """Run a registered benchmark; returns (JSON-able result, human report)."""
+def run_bench(name: str, **options) -> tuple[dict, str]:
+    """Run a registered benchmark; returns (JSON-able result, human report). ``options`` (e.g. ``rig``) go to
+    the benchmark function; only the ones given are passed, so each benchmark keeps its own defaults."""
     mod_name, fn_name, fmt_name = BENCHES[name]
     mod = importlib.import_module(mod_name)
-    result = getattr(mod, fn_name)()
+    result = getattr(mod, fn_name)(**options)
     return result, getattr(mod, fmt_name)(result)

@@ -6,6 +6,7 @@ The registry (daq/bench/__init__.py) imports a benchmark's module only when it r
 from __future__ import annotations
 
 import argparse
+import sys
 
 from daq.bench import BENCHES, run_bench
 from daq.errors import InputError
@@ -15,7 +16,12 @@ from daq.io.jsonout import print_json
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.name not in BENCHES:
         raise InputError("bench", args.name, f"unknown benchmark (have: {', '.join(BENCHES)})")
-    result, report = run_bench(args.name)
+    options = {}
+    if args.rig is not None:
+        if args.name != "diagnose":
+            raise InputError("bench", "--rig", f"only `daq bench diagnose` takes a rig (not {args.name!r})")
+        options = {"rig": args.rig, "progress": lambda msg: print(msg, file=sys.stderr, flush=True)}
+    result, report = run_bench(args.name, **options)
     if args.json:
         print_json(result)
     else:
@@ -27,4 +33,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="run a benchmark against its same-run baseline")
     bench.add_argument("name")
     bench.add_argument("--json", action="store_true")
+    bench.add_argument("--rig", help="diagnose: brake-2dof (default) or belt-ndof (issue 14's long record)")
     bench.set_defaults(func=cmd_bench)

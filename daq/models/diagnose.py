@@ -14,7 +14,8 @@ other parameters, must do worse (own_share; else the gain was the fit's, not the
 candidate passes, the best pairs are fitted together. The steps stop when nothing more helps; ``found`` is
 judged on the combined model.
 
-Decision records: docs/decisions/0009-held-out-scoring-and-noise-floor.md, docs/decisions/0015-diagnosis-forward-selection.md.
+Decision records: docs/decisions/0009-held-out-scoring-and-noise-floor.md, docs/decisions/0015-diagnosis-forward-selection.md,
+docs/decisions/0022-effects-confined-to-a-regime.md.
 """
 
 from __future__ import annotations
@@ -534,6 +535,25 @@ def _summary(session: Session, base: Fitted, final: Fitted, sequence: list[Score
     if best is not None and best.fit_only:
         why = (f"; the model without it, at that fit's other values, does as well ({best.error_neutral:.3g} {unit}): "
                f"its own fit can still improve")
+    n_held = int(session.win.select(True).size)
+    few = ""
+    if z_attainable(n_held) < MIN_T:
+        few = (f" Only {n_held} held-out windows: even if every one improved, the consistency test could not pass "
+               f"(z {z_attainable(n_held):.1f} < {MIN_T}); a longer record (at least {windows_needed()} held-out windows, "
+               f"about {3 * windows_needed()} windows in all) can show it.")
     return (f"The model's error ({e0:.3g} {unit}) is {above} the noise floor, but no catalog "
             f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}{why}). "
-            f"The residual follows: {follows}.")
+            f"The residual follows: {follows}.{few}")
+
+
+def z_attainable(n: int) -> float:
+    """The largest consistency z that n held-out windows can give: every one improving (Wilcoxon p = 2^-n)."""
+    return float(stats.norm.isf(0.5 ** n)) if n > 0 else 0.0
+
+
+def windows_needed() -> int:
+    """The fewest held-out windows whose unanimous improvement passes the consistency gate MIN_T."""
+    n = 1
+    while z_attainable(n) < MIN_T:
+        n += 1
+    return n
