@@ -11,9 +11,9 @@ most promising refitted and scored on held-out windows):
 
 Baseline in the same run: one forward simulation of the whole record (the physics cost of touching every
 sample once), so the ratio says how many whole-record simulations a diagnosis costs. Correct recovery is
-part of the result (`recovered`), never traded for speed. A long record costs about what a short one does:
-the windows are an evenly spaced subset (Session's max_windows), so the figure is mostly the fixed cost of
-the candidate fits.
+part of the result (`recovered`), never traded for speed. The windows are an evenly spaced subset (Session's
+max_windows), but each is as many samples long as the rate makes it: the belt case at 2 kHz did not finish in
+47 min under load (stop 20); the per-window simulation of the hybrid chain and the pair fits are the cost.
 """
 
 from __future__ import annotations

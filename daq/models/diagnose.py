@@ -538,9 +538,10 @@ def _summary(session: Session, base: Fitted, final: Fitted, sequence: list[Score
     n_held = int(session.win.select(True).size)
     few = ""
     if z_attainable(n_held) < MIN_T:
+        n_all = int(session.win.starts.size)  # held-out windows are a fixed share of all (make_windows)
         few = (f" Only {n_held} held-out windows: even if every one improved, the consistency test could not pass "
                f"(z {z_attainable(n_held):.1f} < {MIN_T}); a longer record (at least {windows_needed()} held-out windows, "
-               f"about {3 * windows_needed()} windows in all) can show it.")
+               f"about {math.ceil(windows_needed() * n_all / max(n_held, 1))} windows in all) can show it.")
     return (f"The model's error ({e0:.3g} {unit}) is {above} the noise floor, but no catalog "
             f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}{why}). "
             f"The residual follows: {follows}.{few}")
