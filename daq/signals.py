@@ -1,8 +1,8 @@
 """Signal helpers shared by the models, the papers' analyses and the figures: one copy each.
 
 Savitzky-Golay smoothing and differentiation (:func:`savgol` in samples, :func:`sg` in seconds),
-the white-noise level of a sampled signal (:func:`noise_sigma`), and the spectral tools as the
-papers use them (:func:`paper_spectrogram`, :func:`dominant_frequency`).
+the white-noise level of a sampled signal (:func:`noise_sigma`), block means (:func:`block_mean`),
+and the spectral tools as the papers use them (:func:`paper_spectrogram`, :func:`dominant_frequency`).
 """
 
 from __future__ import annotations
@@ -39,6 +39,14 @@ def noise_sigma(x: np.ndarray) -> float:
         return float("nan")
     mad = np.median(np.abs(d3 - np.median(d3)))
     return float(1.4826 * mad / math.sqrt(20.0))
+
+
+def block_mean(x: np.ndarray, q: int) -> np.ndarray:
+    """Means of consecutive blocks of ``q`` samples (a trailing partial block is dropped): white noise falls by
+    sqrt(q); a smooth signal is read at the block's centre to within x'' (q dt)^2 / 24."""
+    x = np.asarray(x)
+    n = x.size // q
+    return x[:n * q].reshape(n, q).mean(axis=1)
 
 
 def resample_to(t: np.ndarray, x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:

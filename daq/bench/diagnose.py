@@ -12,8 +12,8 @@ most promising refitted and scored on held-out windows):
 Baseline in the same run: one forward simulation of the whole record (the physics cost of touching every
 sample once), so the ratio says how many whole-record simulations a diagnosis costs. Correct recovery is
 part of the result (`recovered`), never traded for speed. The windows are an evenly spaced subset (Session's
-max_windows), but each is as many samples long as the rate makes it: the belt case at 2 kHz did not finish in
-47 min under load (stop 20); the per-window simulation of the hybrid chain and the pair fits are the cost.
+max_windows); the belt record is compared as block means of 6 samples, one per model step (decision 23:
+before it, the belt case did not finish in 47 min; after it, 49.6 s on this 2-core machine, 2026-11-25).
 """
 
 from __future__ import annotations

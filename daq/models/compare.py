@@ -85,6 +85,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
         "filled_samples": session.rec.meta.get("filled", {}),
         "start_from_data": session.law_guess,
         "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
+        "averaged": session.m.averaged,  # the file's samples per compared sample (block means to the model's step)
         "model": fitted.model.describe(),
         "model_digest": fitted.model.digest(),
         "error": fitted.rms(primary, "held"),

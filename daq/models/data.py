@@ -24,11 +24,15 @@ from daq.physics import beltndof, brake2dof, drum
 from daq.physics.contact import AUX
 from daq.physics.effects import DC_MIN, TAIL, E, stick_rates
 from daq.physics.jit import kernel
-from daq.signals import noise_sigma, sg
+from daq.signals import block_mean, noise_sigma, sg
 from daq.sim.rigs import SimRig
 
 SPIKE_SIGMAS = 10.0  # a sample this many noise levels off the cubic through its neighbours is a spike
 FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
+# belt-ndof's model steps per period of the chain's fastest linear mode (BeltData.model_step). Measured on the
+# belt seed model, one mass (3.2 Hz), each window of the 750 000-sample bench record simulated at 0.5 ms and at
+# the coarser step: see docs/decisions/0023-a-model-rate-for-long-records.md.
+STEPS_PER_PERIOD = 100
 
 
 @dataclass
@@ -52,7 +56,9 @@ class Measured:
     v_rel: np.ndarray | None = None  # data-derived relative sliding speed (for regimes)
     d_abs_v_rel: np.ndarray | None = None
     v_stick: float | None = None  # |v_rel| below this is stuck in these data (None: the rig config's v_stick)
-    outliers: dict[str, np.ndarray] = field(default_factory=dict)  # per output, sample indices of repaired spikes
+    outliers: dict[str, np.ndarray] = field(default_factory=dict)  # per output, the file's indices of repaired spikes
+    averaged: int = 1  # the file's samples per sample here (block means down to the model's rate, RigData.prepare)
+    recording: Recording | None = None  # the samples the model sees: spikes repaired, block-averaged
 
     def stick_threshold(self, cfg: RigConfig) -> float:
         return self.v_stick if self.v_stick is not None else cfg.contact.v_stick_m_per_s
@@ -88,6 +94,7 @@ class RigData(ABC):
 
     def __init__(self, cfg: RigConfig) -> None:
         self.cfg = cfg
+        self.averaged = 1  # of the recording prepare() last read
 
     def prepare(self, rec: Recording, source: str) -> Measured:
         for ch in MODEL_CHANNELS[self.rig]:
@@ -102,17 +109,33 @@ class RigData(ABC):
         rate = 1.0 / float(np.median(dt))
         if np.max(np.abs(dt * rate - 1.0)) > 0.01:
             raise InputError(source, "t", "samples must be evenly spaced (resample first)")
+        self.averaged = 1
         channels, outliers = dict(rec.channels), {}
         for name in self.output_channels():
             if name in channels:
                 channels[name], idx = self._despike(name, np.asarray(channels[name], dtype=float))
                 if idx.size:
                     outliers[name] = idx
-        if outliers:
-            rec = Recording(rec.rig, rec.t, channels, rec.units, rec.meta, rec.truth, rec.events)
+        q = max(1, int(rate * self.model_step() + 1e-9))
+        if q > 1 and t.size // q >= 50:  # sampled faster than the model steps: block means, one per model step
+            channels = {k: block_mean(np.asarray(v, dtype=float), q) for k, v in channels.items()}
+            t = block_mean(t, q)
+            rate /= q
+            self.averaged = q
+        if outliers or q > 1:
+            rec = Recording(rec.rig, t, channels, rec.units, {**rec.meta, "averaged": self.averaged},
+                            rec.truth if q == 1 else {}, rec.events)
         m = self._prepare(rec, t, rate, source)
         m.outliers = outliers
+        m.averaged = self.averaged
+        m.recording = rec
         return m
+
+    def model_step(self) -> float:
+        """The model's integrator step [s]: the rig config's. A record sampled more than once per step is
+        block-averaged down to one sample per step before anything reads it (what finer samples add, the
+        model cannot use; they cost simulation time in every window)."""
+        return self.cfg.integrator.dt_s
 
     def output_channels(self) -> tuple[str, ...]:
         """The channels the model predicts (where single-sample spikes are repaired before anything reads them)."""
@@ -205,9 +228,11 @@ class RigData(ABC):
         return (est if np.isfinite(est) and est > 0 else 1e-9), "data"
 
     def _declared_sigma(self, name: str) -> float:
-        """The instrument's declared noise and quantisation of a channel (rig config), 0 where it declares none."""
+        """The instrument's declared noise and quantisation of a channel (rig config), 0 where it declares none;
+        in block means of ``averaged`` samples, sqrt(averaged) times less."""
         ch = self.cfg.channels.get(name)
-        return math.sqrt(ch.noise_std**2 + ch.lsb**2 / 12.0) if ch is not None else 0.0
+        level = math.sqrt(ch.noise_std**2 + ch.lsb**2 / 12.0) if ch is not None else 0.0
+        return level / math.sqrt(self.averaged)
 
     def _temp(self, rec: Recording, rate: float) -> np.ndarray | None:
         if "temp" in rec.channels and np.all(np.isfinite(rec.channels["temp"])):
@@ -479,6 +504,18 @@ class BeltData(RigData):
 
     def output_channels(self):
         return tuple(f"x{i + 1}" for i in range(self.n))
+
+    def model_step(self):
+        """STEPS_PER_PERIOD steps per period of the chain's fastest linear mode (never finer than the config's).
+        Why coarser than the simulator's step: the hybrid integrator locates every event (stick, slip, a kink of
+        the law) and between events RK4 integrates a smooth oscillator, whose error at 100 steps per period is
+        far below any tracker's noise; the rig config's 0.5 ms is the simulator's, chosen so that 2 kHz
+        sensors need no sub-steps. At 0.5 ms a 2 kHz record costs 6x the simulation it needs."""
+        mech = self.cfg.mechanics
+        p = np.zeros(beltndof.N_P)
+        p[beltndof.P.M], p[beltndof.P.K], p[beltndof.P.N] = mech.mass_kg, mech.stiffness_N_per_m, mech.n_masses
+        f_max = float(np.max(beltndof.linear_modes(p)))
+        return max(self.cfg.integrator.dt_s, 1.0 / (STEPS_PER_PERIOD * f_max))
 
     def law_guess(self, m):
         """Break-away and kinetic levels of mass 1 from the spring force the data show (an equation-error pass

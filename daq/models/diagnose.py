@@ -326,6 +326,7 @@ class Diagnosis:
             "filled_samples": session.rec.meta.get("filled", {}),
             "start_from_data": session.law_guess,
             "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
+            "averaged": session.m.averaged,  # the file's samples per compared sample (block means to the model's step)
             "model": self.base.model.describe(),
             "error": e0,
             "error_unit": unit,

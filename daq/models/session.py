@@ -83,11 +83,11 @@ class Fitted:
 
 class Session:
     def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90) -> None:
-        self.rec = rec
         self.source = source
         self.cfg = cfg
         self.rd: RigData = rig_data(cfg, source)
         self.m: Measured = self.rd.prepare(rec, source)
+        self.rec: Recording = self.m.recording  # what the model sees: spikes repaired, averaged to its rate
         self.win: Windows = make_windows(self.m, self.m.stick_threshold(cfg), max_windows=max_windows)
         self.law_guess: dict[str, float] = self.rd.law_guess(self.m)  # a start from the data (reported in the JSON)
 

@@ -232,9 +232,8 @@ class Problem:
     _cache: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        cfg = self.builder.cfg
         rate = self.m.rate
-        self.n_sub = max(1, int(math.ceil((1.0 / rate) / cfg.integrator.dt_s - 1e-9)))
+        self.n_sub = max(1, int(math.ceil((1.0 / rate) / self.rd.model_step() - 1e-9)))
         self.h = 1.0 / rate / self.n_sub
         v = self.m.drive_measured if self.drive == "measured" else self.m.drive_command
         self.rt = np.ascontiguousarray(self.m.t - self.m.t[0])

@@ -47,6 +47,10 @@ STICK = 1.0
 EVENT_TOL = 1e-10
 MAX_SOFT_EVENTS = 200  # per output interval; beyond this, kinks are stepped over (chattering guard)
 MAX_HARD_EVENTS = 10_000  # per output interval; beyond this the run stops with an error instead of hanging
+# ...and on average over a run: a contact that switches a few times every step (a lag far shorter than the step
+# made the belt speed flip sign each step: 500 000 switches, 8 s, in one 0.7 s window) stops with the same error.
+# A chain of three masses switches ~0.1 times per 250 Hz sample.
+MAX_EVENTS_PER_OUTPUT = 20
 
 
 class P(IntEnum):
@@ -179,11 +183,12 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
 
 
 @kernel
-def _rk4_step(t, s, h, hs, p, e, rt, rv, out, wk, fric, region):
-    """One RK4 step of size h from (t, s) into out; wk holds 5 scratch rows."""
+def _rk4_step(t, s, h, k1, hs, p, e, rt, rv, out, wk, fric, region):
+    """One RK4 step of size h from (t, s) into out, given k1 = rhs(t, s) (the same for every trial step a
+    bisection makes from one state, and the last step's end-point rhs when no event came between); wk holds
+    scratch rows."""
     ns = s.size
-    k1, k2, k3, k4, tmp = wk[0], wk[1], wk[2], wk[3], wk[4]
-    rhs(t, s, hs, p, e, rt, rv, k1, fric, region)
+    k2, k3, k4, tmp = wk[1], wk[2], wk[3], wk[4]
     for j in range(ns):
         tmp[j] = s[j] + 0.5 * h * k1[j]
     rhs(t + 0.5 * h, tmp, hs, p, e, rt, rv, k2, fric, region)
@@ -222,16 +227,18 @@ def _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region):
 
 
 @kernel
-def _events(t, s, hs, p, e, rt, rv, ds, fric, region, flags, soft):
-    """Flag masses whose event fired at state s (1 = mode change, 2 = law piece change); any fired?"""
+def _events(t, s, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_at, region_at):
+    """Flag masses whose event fired at state s (1 = mode change, 2 = law piece change); any fired?
+    With ``soft`` the rhs at (t, s) and its law pieces are left in k_at and region_at (the next step's k1
+    when nothing fired)."""
     n = int(p[P.N])
     tail = 2 * n
     any_ev = False
     _, vb, _ = drive(t, s, tail, e, rt, rv)
     if soft:
-        rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
+        rhs(t, s, hs, p, e, rt, rv, k_at, fric, region_at)
         for i in range(n):
-            flags[i] = 2 if region[i] != hs[H.REGION, i] else 0
+            flags[i] = 2 if region_at[i] != hs[H.REGION, i] else 0
             any_ev = any_ev or flags[i] != 0
     else:
         for i in range(n):
@@ -281,13 +288,6 @@ def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
 
 
 @kernel
-def _mark_regions(t, s, hs, p, e, rt, rv, ds, fric, region):
-    rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
-    for i in range(region.size):
-        hs[H.REGION, i] = region[i]
-
-
-@kernel
 def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     """Hybrid integration from s0 at t0; returns states, aux (mass 1), friction per mass, modes, n_events.
 
@@ -308,6 +308,11 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     trial = np.empty(ns)
     ds = np.empty(ns)
     fric = np.empty(n)
+    k1 = np.empty(ns)  # rhs at (t, s) and its law pieces: computed once per state, not once per trial step
+    region1 = np.zeros(n, dtype=np.int64)
+    k_end = np.empty(ns)  # the same at a trial step's end (from _events)
+    region_end = np.zeros(n, dtype=np.int64)
+    have_k1 = False
     n_events = 0
     t = t0
     for k in range(n_out):
@@ -316,22 +321,27 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
         n_hard = 0
         while t_target - t > 1e-12 * dt:
             soft = n_soft < MAX_SOFT_EVENTS
-            _mark_regions(t, s, hs, p, e, rt, rv, ds, fric, region)
+            if not have_k1:
+                rhs(t, s, hs, p, e, rt, rv, k1, fric, region1)
+            have_k1 = False
+            for i in range(n):
+                hs[H.REGION, i] = region1[i]
             h = min(dt, t_target - t)
-            _rk4_step(t, s, h, hs, p, e, rt, rv, trial, wk, fric, region)
-            if _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft):
+            _rk4_step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
+            if _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end):
                 lo = 0.0
                 hi = 1.0
                 while (hi - lo) > EVENT_TOL:
                     mid = 0.5 * (lo + hi)
-                    _rk4_step(t, s, mid * h, hs, p, e, rt, rv, trial, wk, fric, region)
-                    if _events(t + mid * h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft):
+                    _rk4_step(t, s, mid * h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
+                    if _events(t + mid * h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end,
+                               region_end):
                         hi = mid
                     else:
                         lo = mid
                 h = hi * h
-                _rk4_step(t, s, h, hs, p, e, rt, rv, trial, wk, fric, region)
-                _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft)
+                _rk4_step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
+                _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end)
                 t += h
                 s[:] = trial
                 hard = False
@@ -343,11 +353,17 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
                     n_hard += 1
                     if n_hard > MAX_HARD_EVENTS:  # a contact flipping without time advancing
                         raise RuntimeError("belt-ndof: contact chatters (over 10000 stick/slip switches in one output interval)")
+                    if n_events > MAX_EVENTS_PER_OUTPUT * n_out + MAX_HARD_EVENTS:
+                        raise RuntimeError("belt-ndof: contact chatters (over 20 stick/slip switches per output sample)")
                 else:
                     n_soft += 1
             else:
                 t += h
                 s[:] = trial
+                if soft:  # the end point's rhs, with the modes unchanged: the next step's k1
+                    k1[:] = k_end
+                    region1[:] = region_end
+                    have_k1 = True
         _, vb, _ = rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
         states[k] = s
         frics[k] = fric
