@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from refsim import brake, drum, make, sensors
+from refsim import belt, brake, drum, make, sensors
 from refsim import effects as fx
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -437,3 +437,122 @@ def test_null_recording_is_explained_by_our_seed_model(tmp_path, rig):
     out = json.loads(r.stdout)
     assert out["error_unit"] == ("m" if rig == "brake-2dof" else "rad")
     assert out["error"] <= 1.15 * out["noise_floor"], (out["error"], out["noise_floor"])
+
+
+# ---------------------------------------------------------------------------
+# belt-ndof (paper 000): the chain in the belt's frame (elongations and slip speeds)
+# ---------------------------------------------------------------------------
+
+BELT_STEPS = "0.2:1.5,0.06:1.5,0.2:1"
+
+
+def _belt_cfg(n: int = 1, d: float | None = None) -> dict:
+    cfg = fx.load_config("belt-ndof")
+    cfg["mechanics"]["n_masses"] = n
+    if d is not None:
+        cfg["seed_effects"]["viscous-damping"]["d"] = d
+    return cfg
+
+
+def test_belt_one_mass_equals_the_lab_frame_spring_slider():
+    """One mass on a belt at constant speed is a slider pulled through a spring by a driver at that speed
+    (docs/examples/spring-slider.md): the elongation/slip-speed form with its events and slider.py's lab frame
+    with its own events agree over 15 stick-slip cycles (a wrong sign of the springs, of the slip direction, the
+    drop branch or a missed event would not)."""
+    from refsim.slider import Slider
+    from refsim.slider import simulate as slider_simulate
+
+    rig = belt.BeltRig(_belt_cfg(d=0.0))
+    t = np.arange(0, 5.0, 1e-3)
+    tr = rig.simulate(t, rtol=1e-10)
+    x = rig.positions(tr.y)[:, 0]
+    p = rig.p
+    ref = slider_simulate(Slider(p.M, p.K, p.F0, f_s0=p.f_s0, alpha=p.alpha, f_k0=p.f_k0, k_fall=p.k_fall,
+                                 w_min=p.w_min, k_rise=p.k_rise, b=0.0), lambda _t: 0.2, t)
+    assert np.ptp(ref) > 0.03 and rig.n_events > 30  # ~40 mm stick-slip, 15 cycles
+    assert np.max(np.abs(x - ref)) < 1e-6  # 1/20 of the tracker's noise
+    stuck = tr.aux["stuck"] > 0
+    assert 0.3 < stuck.mean() < 0.5
+    assert np.allclose(tr.aux["x1_dot"][stuck], 0.2)  # a stuck mass rides the belt
+
+
+def test_belt_two_mass_chain_rings_in_its_hand_derived_modes():
+    """Contact off, no damping: started at rest in a mode shape of wall-k-m-k-m (hand-derived: K/M [[2,-1],[-1,1]],
+    w^2 = (3 -+ sqrt 5)/2 K/M, shapes (1, golden ratio) and (1, 1 - golden ratio)), the chain stays in that shape and
+    rings at that frequency; the stiffness matrix in the elongations gives the same frequencies."""
+    rig = belt.BeltRig(_belt_cfg(2, d=0.0), friction=False)
+    K, M = rig.p.K, rig.p.M
+    gold = (1 + math.sqrt(5)) / 2
+    expected = [math.sqrt((3 - math.sqrt(5)) / 2 * K / M), math.sqrt((3 + math.sqrt(5)) / 2 * K / M)]
+    assert rig.linear_modes() * 2 * math.pi == pytest.approx(expected, rel=1e-12)
+    t = np.linspace(0, 3.0, 3001)
+    for w, shape in zip(expected, [(1.0, gold), (1.0, 1.0 - gold)]):
+        y0 = rig.initial_state()
+        X0 = 0.01 * np.array(shape)
+        y0[0], y0[1] = X0[0], X0[1] - X0[0]  # elongations
+        y0[2] = y0[3] = rig.drive.command(0.0)  # at rest in the lab: slip speed = belt speed
+        x = rig.positions(rig.simulate(t, y0=y0, rtol=1e-11).y)
+        assert np.max(np.abs(x - np.outer(np.cos(w * t), X0))) < 1e-7
+
+
+ZERO_BELT = {"stick-log": "stick-log:b=0", "accel-body": "accel-body:amp=0", "force-rate-pow": "force-rate-pow:g=0"}
+ON_BELT = {"stick-log": "stick-log:b=0.05", "accel-body": "accel-body:amp=0.1",
+           "force-rate-pow": "force-rate-pow:g=0.1"}
+
+
+@pytest.mark.parametrize("name", belt.SUPPORTED)
+def test_belt_effect_at_magnitude_zero_is_the_base_model_and_on_changes_the_sticks(name):
+    cfg = _belt_cfg()
+    t = np.arange(0, 4.0, 4e-3)
+
+    def run(effects):
+        return belt.BeltRig(cfg, effects, fx.StepDrive.parse(BELT_STEPS)).simulate(t)
+
+    base = run([])
+    assert np.array_equal(run([ZERO_BELT[name]]).y, base.y)
+    on = run([ON_BELT[name]])
+    assert np.abs(on.y[:, 0] - base.y[:, 0]).max() > 1e-3  # 50x the tracker's noise
+    with pytest.raises(fx.SpecError):
+        belt.BeltRig(cfg, ["arrhenius:E=1000"])
+
+
+def test_belt_stick_time_ages_longer_sticks_more():
+    """Dieterich aging on velocity steps: the static level at break-away is higher after the long sticks of the slow
+    belt than after the short ones of the fast belt, by b f_s0 ln((1 + theta_slow/theta*) / (1 + theta_fast/theta*))."""
+    rig = belt.BeltRig(_belt_cfg(), ["stick-log:b=0.05,theta=0.05"], fx.StepDrive.parse("0.2:3,0.06:4"))
+    t = np.arange(0, 7.0, 1e-3)
+    tr = rig.simulate(t)
+    stuck = tr.aux["stuck"] > 0
+    ends = np.flatnonzero(stuck[:-1] & ~stuck[1:])  # last stuck sample before each break-away
+    level = np.abs(tr.aux["friction_1"][ends]) / rig.p.F0
+    theta = tr.y[ends, rig.iTH]
+    fast, slow = ends < 2800, ends > 4500
+    assert fast.sum() >= 5 and slow.sum() >= 3
+    assert theta[slow].min() > 2 * theta[fast].max()
+    for sel in (fast, slow):
+        pred = rig.p.f_s0 * (1 + 0.05 * np.log1p(theta[sel] / 0.05))
+        # the last stuck sample holds at most the limit, and the need grows by K vb over one sample to reach it
+        assert np.all(level[sel] <= pred + 1e-12)
+        assert np.all(level[sel] > pred - rig.p.K * 0.2 * 1e-3 / rig.p.F0)
+    assert level[slow].mean() > level[fast].mean() + 0.03
+
+
+def test_make_writes_belt_steps_and_a_two_mass_rig_file(tmp_path):
+    rig_file = tmp_path / "rig2.toml"
+    rig_file.write_text((ROOT / "rig_configs" / "belt-ndof.toml").read_text().replace("n_masses = 1", "n_masses = 2"))
+    out = tmp_path / "b.csv"
+    cmd = [sys.executable, str(REFSIM / "make.py"), "belt-ndof", "--rig-file", str(rig_file), "--steps", BELT_STEPS,
+           "--effect", "stick-log:b=0.05", "--duration", "3.5", "--seed", "2", "-o", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    assert r.returncode == 0, r.stderr
+    assert out.read_text().splitlines()[0] == "t,x1,x2,vb,vb_set,temp"
+    d = read_csv(out)
+    assert d["t"].size == 876  # the config's 250 Hz
+    assert d["vb_set"][0] == 0.2 and d["vb_set"][500] == pytest.approx(0.06) and d["vb_set"][-1] == pytest.approx(0.2)
+    assert np.allclose(d["x1"] / 1e-5, np.round(d["x1"] / 1e-5))  # the tracker's 10 um lsb
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["expected"] == ["stick-time"] and meta["drive"]["kind"] == "steps"
+    assert meta["modes_hz"] == pytest.approx([1.9673, 5.1504], abs=1e-4)
+    r = subprocess.run([*cmd[:3], "--steps", "0.2:1", "--effect", "waviness", "-o", str(tmp_path / "bad.csv")],
+                       capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -1,4 +1,4 @@
-"""refsim: an independent reference simulator of the brake-2dof and drum-pendulum rigs (tests only).
+"""refsim: an independent reference simulator of the brake-2dof, drum-pendulum and belt-ndof rigs (tests only).
 
 Why it exists (issue 13): diagnosis was only ever tested on recordings from our own
 simulator (daq/physics + daq/sim), with every hidden effect in exactly the form the
@@ -22,7 +22,10 @@ rig config TOML files are read, as data, with ``tomllib``. Agreement with daq is
 our simulator in what the papers fix and be explained by daq's seed model to within
 the noise.
 
-Modules: :mod:`.brake`, :mod:`.drum` (rigs), :mod:`.effects` (config, drive
-programme, effect forms), :mod:`.sensors` (instruments), :mod:`.make` (command line:
-``python tests/refsim/make.py brake-2dof --effect stick-log:b=0.05 -o out.csv``).
+Modules: :mod:`.brake`, :mod:`.drum`, :mod:`.belt` (rigs; belt-ndof: paper 000's chain of 1-3
+masses in the belt's frame, elongations and slip speeds, on velocity steps), :mod:`.slider` (a
+lab-frame spring-slider), :mod:`.effects` (config, drive programmes, effect forms), :mod:`.sensors`
+(instruments), :mod:`.make` (command line:
+``python tests/refsim/make.py brake-2dof --effect stick-log:b=0.05 -o out.csv``;
+``python tests/refsim/make.py belt-ndof --steps 0.2:5,0.06:5,0.2:5 --effect accel-body:amp=0.1 -o b.csv``).
 """

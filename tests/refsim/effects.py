@@ -14,7 +14,8 @@ belt travel, contact temperature) are integrated always, whether an effect reads
 them or not, so that the adaptive step sequence does not depend on which effects
 are listed.
 
-Forms (brake-2dof / drum-pendulum), with what our catalog uses instead:
+Forms (brake-2dof / drum-pendulum; belt-ndof has stick-log, accel-body and force-rate-pow, written for
+its hybrid chain in belt.py), with what our catalog uses instead:
 
 ``stick-log`` (phenomenon stick-time)
     Dieterich's logarithmic aging: static peak x (1 + b ln(1 + theta_s/theta)), where
@@ -166,6 +167,78 @@ def default_drive(cfg: dict, V0: float | None = None, Tmax: float | None = None,
                  kind=kind, lead_in=lead_in, a_max=float(d["max_accel_m_per_s2"]))
 
 
+@dataclass
+class StepDrive:
+    """A velocity-stepping programme: speed ``segments[k][0]`` held for ``segments[k][1]`` seconds, then a ramp at
+    the drive's maximum acceleration to the next speed (the ramp eats into the next segment). The belt runs at the
+    first speed from t = 0 on (the record starts on a running belt). The last segment is held for ever.
+
+    Why steps: at one constant speed every stick lasts as long as the last, so a static level that ages with the
+    time in contact (or grows with the load rate) is a constant, absorbed in f_s0; a velocity-stepping experiment
+    (the classic protocol of rate-and-state friction) makes the stick times and the load rates differ.
+    """
+
+    segments: list[tuple[float, float]]
+    a_max: float = 1.0
+    kind: str = "steps"
+
+    def __post_init__(self) -> None:
+        if not self.segments:
+            raise SpecError("steps: at least one segment")
+        for v, dur in self.segments:
+            if not (math.isfinite(v) and dur > 0):
+                raise SpecError(f"steps: bad segment {v}:{dur}")
+        if not self.a_max > 0:
+            raise SpecError("steps: the drive's acceleration must be > 0")
+        # (t0, v0, t1, v1): ramp pieces between the segments
+        self._ramps = []
+        t = 0.0
+        for (v0, dur), (v1, _) in zip(self.segments, self.segments[1:]):
+            t += dur
+            if v1 != v0:
+                self._ramps.append((t, v0, t + abs(v1 - v0) / self.a_max, v1))
+
+    @classmethod
+    def parse(cls, text: str, a_max: float = 1.0) -> StepDrive:
+        """``V1:T1,V2:T2,...`` [m/s : s]."""
+        segs = []
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            v, sep, dur = item.partition(":")
+            try:
+                segs.append((float(v), float(dur) if sep else math.inf))
+            except ValueError:
+                raise SpecError(f"--steps {text!r}: {item!r} is not SPEED:SECONDS") from None
+        return cls(segs, a_max)
+
+    @property
+    def V0(self) -> float:
+        return self.segments[0][0]
+
+    def command(self, t: float) -> float:
+        v = self.segments[0][0]
+        for t0, v0, t1, v1 in self._ramps:
+            if t < t0:
+                return v
+            if t < t1:
+                return v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+            v = v1
+        return v
+
+    def slope(self, t: float) -> float:
+        """d(command)/dt; inside a ramp +-a_max (at a kink: the slope of the piece that starts there)."""
+        for t0, v0, t1, v1 in self._ramps:
+            if t0 <= t < t1:
+                return math.copysign(self.a_max, v1 - v0)
+        return 0.0
+
+    def kinks(self, t_end: float) -> list[float]:
+        return sorted(k for r in self._ramps for k in (r[0], r[2]) if 0.0 < k < t_end)
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "segments_m_per_s_s": [[v, d] for v, d in self.segments],
+                "a_max_m_per_s2": self.a_max}
+
+
 # ---------------------------------------------------------------------------
 # Effects: parameters with magnitude keys
 # ---------------------------------------------------------------------------
@@ -191,6 +264,14 @@ DRUM_DEFAULTS: dict[str, dict[str, float]] = {
     "waviness": {"wavelength": 0.02},
     "stiffness": {"k1": 0.0, "k": 0.04},
 }
+# belt-ndof (paper 000): the static level is in units of F0, the load rate of one mass on a 0.2 m/s belt is
+# K vb = 40 N/s, the body's acceleration over a slip a few m/s^2, a slip a few cm: Dc 1 mm
+BELT_DEFAULTS: dict[str, dict[str, float]] = {
+    "stick-log": {"b": 0.05, "theta": 0.05, "Dc": 1e-3},
+    "accel-body": {"amp": 0.1, "a0": 2.0},
+    "force-rate-pow": {"g": 0.1, "q0": 40.0},
+}
+RIG_DEFAULTS: dict[str, dict[str, dict[str, float]]] = {"drum-pendulum": DRUM_DEFAULTS, "belt-ndof": BELT_DEFAULTS}
 
 
 @dataclass
@@ -216,8 +297,7 @@ def parse_effect(text: str, rig: str = "brake-2dof") -> Effect:
     if name not in EFFECTS:
         raise SpecError(f"--effect {text!r}: unknown effect {name!r} (known: {', '.join(EFFECTS)})")
     defaults = dict(EFFECTS[name][1])
-    if rig == "drum-pendulum":
-        defaults.update(DRUM_DEFAULTS.get(name, {}))
+    defaults.update(RIG_DEFAULTS.get(rig, {}).get(name, {}))
     given: dict[str, float] = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, val = item.partition("=")
@@ -270,8 +350,7 @@ class EffectSet:
             if e.name == name:
                 return e.params
         d = dict(EFFECTS[name][1])
-        if self.rig == "drum-pendulum":
-            d.update(DRUM_DEFAULTS.get(name, {}))
+        d.update(RIG_DEFAULTS.get(self.rig, {}).get(name, {}))
         for k in EFFECTS[name][0]:
             d[k] = 0.0
         return d

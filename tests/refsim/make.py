@@ -4,8 +4,11 @@
         --effect waviness:w=0.03,wavelength=0.05 --rate 100 --V0 0.2 --Tmax 60 \\
         --duration 20 --seed 3 -o out.csv
 
-writes ``out.csv`` (header ``t,x1,phi,vb,vb_set,temp``, SI units, as ``daq``'s CSV
-reader expects; with ``--truth`` also ``truth_*`` columns, which that reader keeps
+    python tests/refsim/make.py belt-ndof --steps 0.2:5,0.06:5,0.2:5 --effect stick-log:b=0.05 \\
+        [--rig-file rig-2-masses.toml] --duration 15 -o belt.csv
+
+writes ``out.csv`` (header ``t,x1,phi,vb,vb_set,temp``; belt-ndof ``t,x1[,x2,x3],vb,vb_set,temp``; SI units,
+as ``daq``'s CSV reader expects; with ``--truth`` also ``truth_*`` columns, which that reader keeps
 apart from the channels) and ``out.json`` (effects with their magnitudes and the
 phenomenon each is an instance of, seed, drive, sensors, integrator, timings).
 Bad input: one line on stderr, exit status 2, no output files.
@@ -26,21 +29,26 @@ import numpy as np
 
 if __package__ in (None, ""):  # run as a script: make the package importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from refsim import brake, drum, sensors
+    from refsim import belt, brake, drum, sensors
     from refsim import effects as fx
 else:
-    from . import brake, drum, sensors
+    from . import belt, brake, drum, sensors
     from . import effects as fx
 
 VERSION = "refsim 1"
-RIGS = {"brake-2dof": brake.BrakeRig, "drum-pendulum": drum.DrumRig}
+RIGS = {"brake-2dof": brake.BrakeRig, "drum-pendulum": drum.DrumRig, "belt-ndof": belt.BeltRig}
 
 
 def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, V0: float | None = None,
-             Tmax: float | None = None, duration: float | None = None, lead_in: bool = False, seed: int = 0,
+             Tmax: float | None = None, duration: float | None = None, lead_in: bool = False,
+             steps: str | list[tuple[float, float]] | None = None, seed: int = 0,
              noise: bool = True, jitter_s: float = 0.0, spike_prob: float = 0.0, spike_sigma: float = 30.0,
              rtol: float = 1e-7, method: str = "RK45", cfg: dict | None = None) -> dict:
-    """Simulate a reference rig and its instruments. Returns t, channels, truth, meta."""
+    """Simulate a reference rig and its instruments. Returns t, channels, truth, meta.
+
+    ``steps`` (belt-ndof only): a velocity-stepping programme, ``"V1:T1,V2:T2,..."`` or [(V1, T1), ...] [m/s, s],
+    ramps at the config's max_accel_m_per_s2. ``cfg`` may be a user's rig file loaded by effects.load_config
+    (belt-ndof with n_masses = 2 or 3)."""
     if rig not in RIGS:
         raise fx.SpecError(f"rig {rig!r}: unknown (known: {', '.join(RIGS)})")
     cfg = cfg if cfg is not None else fx.load_config(rig)
@@ -49,9 +57,18 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
         raise fx.SpecError(f"--V0 {V0}: must be in (0, {cfg['drive']['max_speed_m_per_s']}] m/s")
     if Tmax is not None and not Tmax > 0:
         raise fx.SpecError(f"--Tmax {Tmax}: must be > 0")
-    drive = fx.default_drive(cfg, V0, Tmax, lead_in)
+    if steps is not None:
+        if rig != "belt-ndof":
+            raise fx.SpecError(f"--steps: only for belt-ndof (not {rig})")
+        a_max = float(cfg["drive"]["max_accel_m_per_s2"])
+        drive = fx.StepDrive.parse(steps, a_max) if isinstance(steps, str) else fx.StepDrive(list(steps), a_max)
+        for v, _ in drive.segments:
+            if not 0.0 < v <= cfg["drive"]["max_speed_m_per_s"]:
+                raise fx.SpecError(f"--steps: speed {v} must be in (0, {cfg['drive']['max_speed_m_per_s']}] m/s")
+    else:
+        drive = fx.default_drive(cfg, V0, Tmax, lead_in)
     duration = float(duration if duration is not None else
-                     min(cfg["drive"]["default_duration_s"], drive.Tmax or math.inf))
+                     min(cfg["drive"]["default_duration_s"], getattr(drive, "Tmax", None) or math.inf))
     if not duration > 0:
         raise fx.SpecError(f"--duration {duration}: must be > 0")
     rate = float(rate or cfg["sensors"]["rate_Hz"])
@@ -80,7 +97,8 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
         "integrator": {"scipy": "solve_ivp", "method": method, "rtol": rtol, "max_step_s": min(1e-3, 1.0 / rate),
                        "nfev": tr.nfev, "wall_s": round(tr.wall_s, 3)},
         "units": {n: cfg["channels"][n].get("unit", "") for n in channels},
-        "springs_N_per_m": ({"k1": model.k1, "k2": model.k2, "k3": model.k3} if rig == "brake-2dof" else {"k": model.k}),
+        "springs_N_per_m": ({"k1": model.k1, "k2": model.k2, "k3": model.k3} if rig == "brake-2dof" else
+                            {"k": model.p.K, "n_masses": model.n} if rig == "belt-ndof" else {"k": model.k}),
         "modes_hz": [round(float(f), 4) for f in model.linear_modes()],
     }
     return {"t": t_nom, "channels": channels, "truth": truth, "meta": meta}
@@ -124,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--Tmax", type=float, default=None, help="ramp duration of eq. (11) [s]")
     ap.add_argument("--duration", type=float, default=None, help="record length [s]")
     ap.add_argument("--lead-in", action="store_true", help="start the drive from rest at its max acceleration")
+    ap.add_argument("--steps", default=None, metavar="V1:T1,V2:T2,...",
+                    help="belt-ndof: belt speed steps [m/s : s], ramps at the config's max acceleration")
+    ap.add_argument("--rig-file", default=None, help="a user's rig file (e.g. belt-ndof with n_masses = 2)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-noise", action="store_true")
     ap.add_argument("--jitter", type=float, default=0.0, metavar="S", help="clock jitter std [s]")
@@ -144,7 +165,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise fx.SpecError(f"{name} {v}: out of range")
         w0 = time.perf_counter()
         rec = generate(a.rig, a.effect, rate=a.rate, V0=a.V0, Tmax=a.Tmax, duration=a.duration, lead_in=a.lead_in,
-                       seed=a.seed, noise=not a.no_noise, jitter_s=a.jitter, spike_prob=a.spikes,
+                       steps=a.steps, cfg=fx.load_config(a.rig_file) if a.rig_file else None, seed=a.seed,
+                       noise=not a.no_noise, jitter_s=a.jitter, spike_prob=a.spikes,
                        spike_sigma=a.spike_sigma, rtol=a.rtol, method=a.method)
         rec["meta"]["generate_wall_s"] = round(time.perf_counter() - w0, 3)
         csv_path, side = write(rec, a.out, truth=a.truth)
