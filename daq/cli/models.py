@@ -107,8 +107,8 @@ def _session(args: argparse.Namespace):
         say("single-sample spikes repaired (cubic through the neighbours): "
             + ", ".join(f"{k} {v.size}" for k, v in s.m.outliers.items()))
     if s.m.averaged > 1:
-        say(f"{s.m.n * s.m.averaged} samples at {s.m.rate * s.m.averaged:g} Hz, compared as block means of "
-            f"{s.m.averaged} (one per model step of {1e3 / s.m.rate:.3g} ms: finer samples add nothing the model resolves)")
+        say(f"the file's {s.m.rate * s.m.averaged:g} Hz samples compared as block means of {s.m.averaged} (one per "
+            f"model step of {1e3 / s.m.rate:.3g} ms: finer samples add nothing the model resolves)")
     say(f"{s.m.n} samples at {s.m.rate:g} Hz; {s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s "
          f"({int(s.win.held_out.sum())} held out); drive: {s.m.command_source}")
     return model, s

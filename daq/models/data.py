@@ -512,9 +512,7 @@ class BeltData(RigData):
         far below any tracker's noise; the rig config's 0.5 ms is the simulator's, chosen so that 2 kHz
         sensors need no sub-steps. At 0.5 ms a 2 kHz record costs 6x the simulation it needs."""
         mech = self.cfg.mechanics
-        p = np.zeros(beltndof.N_P)
-        p[beltndof.P.M], p[beltndof.P.K], p[beltndof.P.N] = mech.mass_kg, mech.stiffness_N_per_m, mech.n_masses
-        f_max = float(np.max(beltndof.linear_modes(p)))
+        f_max = float(np.max(beltndof.chain_modes(mech.mass_kg, mech.stiffness_N_per_m, mech.n_masses)))
         return max(self.cfg.integrator.dt_s, 1.0 / (STEPS_PER_PERIOD * f_max))
 
     def law_guess(self, m):

@@ -395,11 +395,15 @@ def energy(states: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def linear_modes(p: np.ndarray) -> np.ndarray:
     """Natural frequencies [Hz] of the chain without friction."""
-    n = int(p[P.N])
+    return chain_modes(p[P.M], p[P.K], int(p[P.N]))
+
+
+def chain_modes(mass: float, stiffness: float, n: int) -> np.ndarray:
+    """Natural frequencies [Hz] of the chain wall-k-m1-...-mn (free last mass) of equal masses and springs."""
     kmat = np.zeros((n, n))
     for i in range(n):
         kmat[i, i] = 2.0 if i < n - 1 else 1.0
         if i > 0:
             kmat[i, i - 1] = kmat[i - 1, i] = -1.0
-    w2 = np.linalg.eigvalsh(kmat * p[P.K] / p[P.M])
+    w2 = np.linalg.eigvalsh(kmat * stiffness / mass)
     return np.sqrt(w2) / (2 * math.pi)
