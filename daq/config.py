@@ -241,6 +241,10 @@ class BeltMechanics(Strict):
     mass_kg: float = Field(gt=0)
     stiffness_N_per_m: float = Field(gt=0)
     normal_force_N: float = Field(gt=0, description="friction unit F0 of paper 000 eq. (2)")
+    driven: Literal["belt", "spring"] = Field(
+        "belt", description="what the drive moves: 'belt' (paper 000: the belt under the masses, the chain's wall "
+                            "fixed) or 'spring' (a spring-slider: the chain's far end moves, the track is fixed; seen "
+                            "from the driver every mass feels -M dV/dt when the drive speed V changes)")
 
 
 class BeltFriction(Strict):

@@ -29,6 +29,7 @@ from daq.sim.rigs import make_sim
 from daq.sim.run import simulate as simulate_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim)
+from refsim import belt as ref_belt, effects as ref_effects  # noqa: E402
 from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
 
 M, K, G = 0.05, 200.0, 9.81
@@ -38,6 +39,8 @@ def slider_rig(tmp_path: Path) -> Path:
     """The spring-slider of docs/examples/spring-slider.md as a user's belt-ndof rig file."""
     text = rig_path("belt-ndof").read_text()
     text = text.replace("mass_kg = 0.5", f"mass_kg = {M}").replace("normal_force_N = 4.905", f"normal_force_N = {M * G}")
+    assert 'driven = "belt"' in text
+    text = text.replace('driven = "belt"', 'driven = "spring"', 1)  # the driver pulls the spring; the track is fixed
     path = tmp_path / "slider-rig.toml"
     path.write_text(text)
     return path
@@ -59,6 +62,82 @@ def test_the_belt_chain_equals_a_spring_slider_integrated_in_the_lab_frame(tmp_p
     x = sim.advance(s0, 0.0, 2.5e-5, 20, t.size, t, np.full(t.size, 4e-3)).states[:, 0]
     assert np.ptp(ref) > 2e-3  # several stick-slip cycles of ~2.3 mm
     assert np.max(np.abs(x - ref)) < 1e-7
+
+
+def stuck_start(sim, v: float):
+    """Every mass stuck to the belt at v, every spring free: the reference's initial state."""
+    s0 = sim.initial_state(v)
+    s0[sim.n:2 * sim.n] = v
+    sim.hybrid[beltndof.H.MODE], sim.hybrid[beltndof.H.STICK_T0] = beltndof.STICK, 0.0
+    return s0
+
+
+def regrowing_slips(w: np.ndarray, stuck: np.ndarray, rise: float) -> int:
+    """Slips (runs of samples not stuck) in which |w| passes a local minimum above zero and then grows by > rise."""
+    count = 0
+    edges = np.flatnonzero(np.diff(np.r_[0, ~stuck, 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        u = np.abs(w[a:b])
+        for j in range(1, u.size - 1):
+            if u[j] <= u[j - 1] and u[j] < u[j + 1] and u[j] > 0 and u[j:].max() - u[j] > rise:
+                count += 1
+                break
+    return count
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_chain_of_masses_equals_the_reference_chain_in_other_coordinates(tmp_path, n):
+    """Two and three masses: daq's chain (positions from the wall, RK4 cut at located events) and
+    tests/refsim/belt.py (the springs' elongations and slip speeds, scipy RK45 with located events, nothing shared)
+    from the same stuck start agree to a micrometre over 6 s. In a chain a slipping mass's slip speed can dip and
+    grow again without sticking (asserted below): paper 000's drop from the static level is "the decrease of the
+    friction force at the moment of adhesion loss", so it does not come back then. Until 2026-11-25 it did in
+    daq (the growing branch was max(drop, kinetic) whenever |w| grew) and the two chains parted by 1.6 mm at
+    2.2 s: the two-mass recovery row failed on it."""
+    text = rig_path("belt-ndof").read_text().replace("n_masses = 1", f"n_masses = {n}", 1)
+    rig = tmp_path / "chain.toml"
+    rig.write_text(text)
+    cfg, v, rate = load_rig(rig), 0.2, 250.0
+    t = np.arange(int(6.0 * rate) + 1) / rate
+    e = environment_vector(cfg)
+    e[E.D_BELT] = cfg.seed_effects["viscous-damping"]["d"]
+    sim = make_sim(cfg, e)
+    ch = sim.advance(stuck_start(sim, v), 0.0, 5e-4, 8, t.size, np.array([0.0, 10.0]), np.array([v, v]))
+    ref = ref_belt.BeltRig(ref_effects.load_config(rig), effects=(), drive=ref_effects.StepDrive([(v, np.inf)], 1.0))
+    x_ref = ref.positions(ref.simulate(t, rtol=1e-9, max_step=2e-4, atol_scale=1e-2).y)
+    w = v - ch.states[:, n:2 * n]
+    stuck = ch.extra["modes"] == beltndof.STICK
+    assert sum(regrowing_slips(w[:, i], stuck[:, i], 0.02) for i in range(n)) >= 1
+    assert np.ptp(x_ref) > 0.05
+    assert np.max(np.abs(ch.states[:, :n] - x_ref)) < 1e-6
+
+
+@pytest.mark.parametrize("ramp_s", [1e-3, 1.05e-3])
+def test_a_driven_spring_end_is_a_spring_slider_through_a_driver_step(tmp_path, ramp_s):
+    """driven = "spring": the chain's far end moves at the drive speed, the track is fixed (a spring-slider). In
+    the driver's frame a change of drive speed pushes the mass by M dV/dt; with it the chain equals the lab-frame
+    slider (tests/refsim/slider.py) through a 4 -> 1 mm/s driver step over 1 ms, which falls mid-slip here, to
+    0.01 um; read as a belt (driven = "belt") the same step parts them by ~0.4 mm. The step's corners lie off the
+    integrator's 0.1 ms grid (1.05 ms): steps end on a corner, whose last stage sees the slope from the left
+    (before 2026-11-25 one stage took the next segment's slope: 24 um)."""
+    rate = 500.0
+    t = np.arange(int(10 * rate)) / rate
+    ref = slider_simulate(Slider(M, K, M * G, f_s0=0.62, f_k0=0.45, k_fall=0.1, b=0.0),
+                          lambda tt: 4e-3 - 3e-3 * min(1.0, max(0.0, (tt - 8.0) / ramp_s)), t)
+    rt, rv = np.array([0.0, 8.0, 8.0 + ramp_s, 100.0]), np.array([4e-3, 4e-3, 1e-3, 1e-3])
+    text = slider_rig(tmp_path).read_text()
+    text = text.replace("f_s0 = 1.33", "f_s0 = 0.62").replace("f_k0 = 1.0", "f_k0 = 0.45").replace("k_fall = 0.3", "k_fall = 0.1")
+    errors = {}
+    for driven in ("spring", "belt"):
+        rig = tmp_path / f"{driven}.toml"
+        rig.write_text(text.replace('driven = "spring"', f'driven = "{driven}"'))
+        cfg = load_rig(rig)
+        sim = make_sim(cfg, environment_vector(cfg))
+        x = sim.advance(stuck_start(sim, 4e-3), 0.0, 1e-4, 20, t.size, rt, rv).states[:, 0]
+        errors[driven] = np.max(np.abs(x - ref))
+        assert np.max(np.abs(x - ref)[t < 8.0]) < 1e-8  # the same until the step
+    assert errors["spring"] < 1e-8, errors
+    assert errors["belt"] > 1e-4, errors
 
 
 def test_the_seed_model_on_its_own_simulation_sits_at_the_noise_floor(tmp_path):
@@ -142,10 +221,13 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     res = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert abs(res["start_from_data"]["friction.f_s0"] - 0.62) < 0.05
     assert abs(res["start_from_data"]["friction.f_k0"] - 0.45) < 0.05
-    law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0", "k_fall")}
-    assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45, "k_fall": 0.1}, rel=0.03), law
-    fast = next(v["error"] for k, v in res["by_regime"].items() if k.startswith("belt speed 4-4"))
-    assert fast < 1.5 * res["noise_floor"], (fast, res["noise_floor"])
-    # 32 of 34 windows sit at the floor; two held-out ones (the one holding the driver's step, one after a 0.9 s
-    # stick) keep ~50 um after one slip: cause not found yet (decision 21); the record within 10x, not 300x
-    assert res["error"] < 10.0 * res["noise_floor"], (res["error"], res["noise_floor"])
+    law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0")}
+    assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45}, rel=0.03), law
+    # the kinetic slope trades with the damping (both shape a slip's decay; seen 0.1039 +- 0.0017 with d = 0.011
+    # +- 0.005, true 0 and 0.1): within 3 of its own standard errors
+    k_fall = res["parameters"]["friction.k_fall"]
+    assert abs(k_fall["value"] - 0.1) < 3.0 * k_fall["std"], k_fall
+    # every window at the floor, the one holding the driver's step (the driver's frame accelerates: driven =
+    # "spring") and one starting 4 ms after a break-away (read stuck, started slipping) included: both were
+    # ~20 um until 2026-11-25 (decision 21)
+    assert res["error"] < 1.15 * res["noise_floor"], (res["error"], res["noise_floor"])

@@ -12,6 +12,8 @@ order between events.
 Dimensional form of eq. (1) per mass, chain wall-k-m1-k-m2-k-m3 (free last mass):
     M x_i'' + D x_i' + (K x)_i = F0 f(w_i),  w_i = (v_b - x_i') / v_u,  v_u = F0 / sqrt(K M)
 which is eq. (3) after the scaling (2): x = K X / F0, t = tau / sqrt(M/K), d = D / sqrt(K M).
+A spring-slider (mechanics.driven = "spring": the chain's far end driven at v_b, the track fixed) is the same
+chain in the driver's frame plus the frame's acceleration, + M v_b' on the right (zero at a constant speed).
 Static limit: f_s = f_s0 * static_factor(t_s, Delta) where t_s is the time stuck and
 Delta = d(friction needed)/dt while stuck (for one mass on a constant belt, K S: the paper's Delta).
 
@@ -34,7 +36,7 @@ from .effects import (
     arrhenius_factor,
     drive_speed,
     env_rates,
-    ramp_eval,
+    ramp_eval_side,
     static_factor,
     temperature_factor,
 )
@@ -64,6 +66,7 @@ class P(IntEnum):
     K_FALL = 7
     W_MIN = 8
     K_RISE = 9
+    SPRING_DRIVEN = 10  # 1: the springs' far end is driven, the track fixed (a spring-slider, in the driver's frame)
 
 
 N_P = len(P)
@@ -77,6 +80,7 @@ class H(IntEnum):
     SLIP_DIR = 2  # sign of w while slipping (used when w is exactly 0)
     STICK_T0 = 3  # time the current stick began
     REGION = 4  # smooth piece of the law the mass is on (0 = stuck)
+    DROP = 5  # 1 while on the break-away drop (from a stick's end or a reversal until the slip leaves it), else 0
 
 
 N_H = len(H)
@@ -92,6 +96,7 @@ def new_hybrid(n: int, f_s0: float, slip_dir: float) -> np.ndarray:
     hs[H.MODE] = SLIP
     hs[H.FS_BREAK] = f_s0
     hs[H.SLIP_DIR] = slip_dir
+    hs[H.DROP] = 1.0
     return hs
 
 
@@ -113,16 +118,17 @@ def chain_at(x, i, n, k):
 
 
 @kernel
-def drive(t, s, tail, e, rt, rv):
-    """Commanded and actual belt speed for state s: (v_cmd, v, dv/dt)."""
-    v_cmd, dv_cmd = ramp_eval(rt, rv, t)
+def drive(t, s, tail, e, rt, rv, left):
+    """Commanded and actual belt speed for state s: (v_cmd, v, dv/dt); ``left``: the programme's slope from the
+    left at a corner (the last stage of a step that ends there)."""
+    v_cmd, dv_cmd = ramp_eval_side(rt, rv, t, left)
     v, dv = drive_speed(v_cmd, dv_cmd, s[tail + TAIL.VLAG], s[tail + TAIL.POS], e[E.VB_TAU], e[E.VB_RIPPLE],
                         e[E.VB_WAVELEN])
     return v_cmd, v, dv
 
 
 @kernel
-def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
+def rhs(t, s, hs, p, e, rt, rv, ds, fric, region, left=False):
     """Right-hand side for the current modes; fric[i] = friction force on mass i along +x [N].
 
     region[i] codes which smooth piece of the law mass i is on (0 = stuck); the integrator
@@ -133,11 +139,14 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
     K = p[P.K]
     F0 = p[P.F0]
     tail = 2 * n
-    v_cmd, vb, dvb = drive(t, s, tail, e, rt, rv)
+    v_cmd, vb, dvb = drive(t, s, tail, e, rt, rv, left)
     skm = math.sqrt(K * M)
     vu = F0 / skm
     damp = e[E.D_BELT] * skm
     amp = e[E.AS_AMP]
+    # seen from a driven spring end, a change of drive speed is a frame acceleration: +M V' on every mass (a mass
+    # stuck to the fixed track then needs no friction for it), see docs/examples/spring-slider.md
+    frame = p[P.SPRING_DRIVEN]
     temp = s[tail + TAIL.TEMP]
     tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
     a_d, f_k0, k_f, w_m, k_r = p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
@@ -148,7 +157,7 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
         if hs[H.MODE, i] == STICK:
             ds[i] = vb
             ds[n + i] = dvb
-            fric[i] = M * dvb + damp * vi + kx
+            fric[i] = M * dvb * (1.0 - frame) + damp * vi + kx
             region[i] = 0
         else:
             w = (vb - vi) / vu
@@ -156,16 +165,16 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region):
             # past w = 0 so that a step overshooting the crossing ends on the far side
             sg = hs[H.SLIP_DIR, i]
             u = sg * w
-            fsb = hs[H.FS_BREAK, i]
+            fsb = hs[H.FS_BREAK, i] if hs[H.DROP, i] != 0.0 else -math.inf
             fp = sg * f_pwl_piece(u, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w
             fm = sg * f_pwl_piece(u, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w
-            ap = (F0 * fp - damp * vi - kx) / M
-            am = (F0 * fm - damp * vi - kx) / M
+            ap = (F0 * fp - damp * vi - kx) / M + frame * dvb
+            am = (F0 * fm - damp * vi - kx) / M + frame * dvb
             wsel = 1.0 if fp == fm else accel_sign_weight(-sg, ap, am, dvb)
             f = fm + 0.5 * (wsel + 1.0) * (fp - fm)
             fric[i] = F0 * f
             ds[i] = vi
-            ds[n + i] = (F0 * f - damp * vi - kx) / M
+            ds[n + i] = (F0 * f - damp * vi - kx) / M + frame * dvb
             kin = f_k0 - k_f * min(u, w_m) + k_r * max(u - w_m, 0.0)
             on_drop = 1 if wsel != -1.0 and fsb - a_d * u > (1.0 + amp) * kin else 0
             above_min = 1 if u > w_m else 0
@@ -197,7 +206,7 @@ def _rk4_step(t, s, h, k1, hs, p, e, rt, rv, out, wk, fric, region):
     rhs(t + 0.5 * h, tmp, hs, p, e, rt, rv, k3, fric, region)
     for j in range(ns):
         tmp[j] = s[j] + h * k3[j]
-    rhs(t + h, tmp, hs, p, e, rt, rv, k4, fric, region)
+    rhs(t + h, tmp, hs, p, e, rt, rv, k4, fric, region, True)  # a step never crosses a corner of the programme
     for j in range(ns):
         out[j] = s[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
 
@@ -234,7 +243,7 @@ def _events(t, s, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_at, region_
     n = int(p[P.N])
     tail = 2 * n
     any_ev = False
-    _, vb, _ = drive(t, s, tail, e, rt, rv)
+    _, vb, _ = drive(t, s, tail, e, rt, rv, False)
     if soft:
         rhs(t, s, hs, p, e, rt, rv, k_at, fric, region_at)
         for i in range(n):
@@ -257,11 +266,25 @@ def _events(t, s, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_at, region_
 
 
 @kernel
+def _end_drops(hs, region, n):
+    """A slipping mass whose law piece is off the break-away drop has left it for good (until it sticks or
+    reverses): paper 000's drop is "the decrease of the friction force at the moment of adhesion loss", not a
+    branch to return to when the slip speed dips and grows again within one slip, as it does in a chain. Any
+    drop ended (the caller then recomputes the rhs: the branch choice read the drop)?"""
+    ended = False
+    for i in range(n):
+        if hs[H.MODE, i] == SLIP and hs[H.DROP, i] != 0.0 and ((region[i] - 1) >> 1) & 1 == 0:
+            hs[H.DROP, i] = 0.0
+            ended = True
+    return ended
+
+
+@kernel
 def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
     """Apply the mode changes flagged at an event."""
     n = int(p[P.N])
     tail = 2 * n
-    _, vb, _ = drive(t, s, tail, e, rt, rv)
+    _, vb, _ = drive(t, s, tail, e, rt, rv, False)
     for i in range(n):
         if flags[i] != 1:
             continue
@@ -276,9 +299,11 @@ def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
             else:  # passes through zero relative velocity: reversal of slip
                 hs[H.SLIP_DIR, i] = 1.0 if need > 0.0 else -1.0
                 hs[H.FS_BREAK, i] = limit / p[P.F0]
+                hs[H.DROP, i] = 1.0
         else:
             need, rate = _stick_need(t, s, i, hs, p, e, rt, rv, ds, fric, region)
             hs[H.FS_BREAK, i] = _static_limit(t - hs[H.STICK_T0, i], rate, p, e)
+            hs[H.DROP, i] = 1.0
             hs[H.MODE, i] = SLIP
             # a stuck mass rides the belt; rounding (a belt that changed speed) can leave its velocity
             # 1e-13 m/s on the wrong side, read at once as a zero crossing of w: a spurious fresh contact
@@ -315,18 +340,25 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     have_k1 = False
     n_events = 0
     t = t0
+    kink = 0  # the drive programme's next corner: a step ends there (across it RK4 drops to first order)
     for k in range(n_out):
         t_target = t0 + k * n_sub * dt
         n_soft = 0
         n_hard = 0
-        while t_target - t > 1e-12 * dt:
+        while t_target - t > 1e-9 * dt:
             soft = n_soft < MAX_SOFT_EVENTS
             if not have_k1:
                 rhs(t, s, hs, p, e, rt, rv, k1, fric, region1)
             have_k1 = False
+            if _end_drops(hs, region1, n):
+                rhs(t, s, hs, p, e, rt, rv, k1, fric, region1)
             for i in range(n):
                 hs[H.REGION, i] = region1[i]
             h = min(dt, t_target - t)
+            while kink < rt.size and rt[kink] <= t:
+                kink += 1
+            if kink < rt.size and rt[kink] - t <= h + 1e-9 * dt:
+                h = rt[kink] - t  # ends on the corner exactly (rounding must not leave it a hair to either side)
             _rk4_step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
             if _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end):
                 lo = 0.0
@@ -368,7 +400,7 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
         states[k] = s
         frics[k] = fric
         modes_out[k] = hs[H.MODE]
-        v_cmd, vb, _ = drive(t, s, tail, e, rt, rv)
+        v_cmd, vb, _ = drive(t, s, tail, e, rt, rv, False)
         # aux in the common convention: F = mu(V_rel) N with V_rel = body - drive, force on body = -F
         auxs[k, AUX.F] = -fric[0]
         auxs[k, AUX.N] = p[P.F0]

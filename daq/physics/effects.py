@@ -407,16 +407,23 @@ def arrhenius_factor(temp: float, theta: float, ref: float) -> float:
 @kernel
 def ramp_eval(rt: np.ndarray, rv: np.ndarray, t: float):
     """Piecewise-linear drive programme: value and slope at t (held constant outside the table)."""
+    return ramp_eval_side(rt, rv, t, False)
+
+
+@kernel
+def ramp_eval_side(rt: np.ndarray, rv: np.ndarray, t: float, left: bool):
+    """ramp_eval, with the slope from the left at a corner when ``left``: what an integrator step that ends on a
+    corner must see (the right-hand slope there is the next step's)."""
     n = rt.size
     if t <= rt[0]:
         return rv[0], 0.0
-    if t >= rt[n - 1]:
+    if t > rt[n - 1] or (t == rt[n - 1] and not left):
         return rv[n - 1], 0.0
     lo = 0
     hi = n - 1
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if rt[mid] <= t:
+        if rt[mid] < t or (rt[mid] == t and not left):
             lo = mid
         else:
             hi = mid

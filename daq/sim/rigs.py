@@ -197,6 +197,7 @@ class BeltSim(SimRig):
         p[P.M], p[P.K], p[P.F0], p[P.N] = m.mass_kg, m.stiffness_N_per_m, m.normal_force_N, m.n_masses
         p[P.F_S0], p[P.ALPHA_DROP], p[P.F_K0] = f.f_s0, f.alpha_drop, f.f_k0
         p[P.K_FALL], p[P.W_MIN], p[P.K_RISE] = f.k_fall, f.w_min, f.k_rise
+        p[P.SPRING_DRIVEN] = 1.0 if m.driven == "spring" else 0.0
         return p
 
     def initial_state(self, v_drive: float) -> np.ndarray:

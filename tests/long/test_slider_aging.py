@@ -70,6 +70,7 @@ def edit_rig(path: Path) -> None:
     """What the user edits in `daq rig init`'s copy: their slider, spring, load, driver, gauge rate and noise."""
     text = path.read_text()
     for old, new in [("mass_kg = 0.5", f"mass_kg = {M}"), ("normal_force_N = 4.905", f"normal_force_N = {M * G}"),
+                     ('driven = "belt"', 'driven = "spring"'),
                      ("V0_m_per_s = 0.2", "V0_m_per_s = 4e-3"), ("rate_Hz = 250.0", f"rate_Hz = {RATE}"),
                      ("noise_std = 2e-5\nlsb = 1e-5", f"noise_std = {5e-4 * M * G / K:.3g}\nlsb = {1e-3 * M * G / K:.3g}")]:
         assert old in text, old
