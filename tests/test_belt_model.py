@@ -231,3 +231,4 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     # "spring") and one starting 4 ms after a break-away (read stuck, started slipping) included: both were
     # ~20 um until 2026-11-25 (decision 21)
     assert res["error"] < 1.15 * res["noise_floor"], (res["error"], res["noise_floor"])
+    assert res["residual_outliers"]["x1"] <= 2, res["residual_outliers"]  # 5 noise levels: none expected at the floor

@@ -151,7 +151,7 @@ def _append_history(path: Path, res: dict) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.compare import compare
+    from daq.models.compare import OUTLIER_SIGMAS, compare
     from daq.models.figures import compare_figure, spectrogram_figure
     from daq.models.spec import save_model
 
@@ -183,6 +183,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print("  by regime: " + "; ".join(f"{k} {v['error']:.3g}" for k, v in res["by_regime"].items()))
         print("  by signal: " + "; ".join(f"{k} {v['error']:.3g} {v['unit']} (floor {v['noise_floor']:.3g})"
                                           for k, v in res["by_signal"].items()))
+        far = {k: n for k, n in res["residual_outliers"].items() if n}
+        if far:
+            print(f"  beyond {OUTLIER_SIGMAS:g} noise levels of the model (spikes left, or where it fails): "
+                  + ", ".join(f"{k} {n} samples" for k, n in far.items()))
         print("  invariants (measured / model): " + "; ".join(
             f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
         print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))

@@ -17,7 +17,8 @@ chain in the driver's frame plus the frame's acceleration, + M v_b' on the right
 Static limit: f_s = f_s0 * static_factor(t_s, Delta) where t_s is the time stuck and
 Delta = d(friction needed)/dt while stuck (for one mass on a constant belt, K S: the paper's Delta).
 
-Decision record: docs/decisions/0011-fixed-step-rk4-smooth-laws.md.
+Decision records: docs/decisions/0011-fixed-step-rk4-smooth-laws.md; the drop after adhesion loss only, a driven
+spring end and steps on the programme's corners: docs/decisions/0024-chain-drop-driven-end-and-corners.md.
 """
 
 from __future__ import annotations
@@ -340,7 +341,9 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     have_k1 = False
     n_events = 0
     t = t0
-    kink = 0  # the drive programme's next corner: a step ends there (across it RK4 drops to first order)
+    # the drive programme's next corner (a step ends there: across it RK4 drops to first order); a window starts
+    # anywhere in a long record's table, so found by bisection, not walked to
+    kink = np.searchsorted(rt, t0, side="right")
     for k in range(n_out):
         t_target = t0 + k * n_sub * dt
         n_soft = 0
