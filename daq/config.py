@@ -244,7 +244,7 @@ class BeltMechanics(Strict):
     driven: Literal["belt", "spring"] = Field(
         "belt", description="what the drive moves: 'belt' (paper 000: the belt under the masses, the chain's wall "
                             "fixed) or 'spring' (a spring-slider: the chain's far end moves, the track is fixed; seen "
-                            "from the driver every mass feels -M dV/dt when the drive speed V changes)")
+                            "from the driver every mass feels + M dV/dt along x when the drive speed V changes)")
 
 
 class BeltFriction(Strict):
