@@ -38,7 +38,7 @@ def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict
     """Sample indices and residuals (model - measured) of every scored window (fit and held-out; a flagged
     transient is not scored: one at ~1 mm made "all windows" 114 um against 30 um held out and every regime's
     bar ~1e-4 m on a 750 000-sample belt record), start excluded."""
-    scored = np.concatenate([session.win.select(False), session.win.select(True)])
+    scored = session.win.scored()
     shot = fitted.problem.shoot(fitted.values, scored, fitted.start_values(scored))
     return shot.index[:, 1:].ravel(), {k: (shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel() for k in shot.pred}
 

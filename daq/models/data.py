@@ -556,21 +556,23 @@ class BeltData(RigData):
         rate_need = p[beltndof.P.K] * vb  # paper 000's Delta for a mass on a steady belt: K S
         for k in range(n):
             stuck_s = float(c[f"x{k + 1}_stuck_s"][i])
-            if stuck_s > 0.0 and not self._breaking_away(p, e, s0, k, vb, stuck_s, rate_need):
-                hs[beltndof.H.MODE, k] = beltndof.STICK
-                hs[beltndof.H.STICK_T0, k] = t_rel - stuck_s
-                # a stuck mass moves with the belt: its start velocity is no free value (a fit that moved it,
-                # seen at 1e3-4e7 m/s since nothing depended on it, made the contact chatter 3e5 times a window)
-                s0[n + k] = vb
-            elif stuck_s > 0.0:
-                # read stuck, but the springs at the start pull harder than the static limit holds: the mass broke
-                # away within the last samples (its slip speed still below the stick threshold). Started stuck it
-                # would break at once from u = 0, late, and slip too far (seen: a window starting 4 ms after a
-                # break, 21 um on a 1.4 um floor with the true law; the fit moved the start 9 um to compensate).
-                # It starts slipping, from the static level, on the drop, with its start velocity free.
+            if stuck_s > 0.0:
+                level = beltndof._static_limit(stuck_s, rate_need, p, e)
                 need = self._need_stuck(p, e, s0, k, vb)
-                hs[beltndof.H.SLIP_DIR, k] = 1.0 if need > 0.0 else -1.0
-                hs[beltndof.H.FS_BREAK, k] = beltndof._static_limit(stuck_s, rate_need, p, e)
+                if abs(need) <= p[beltndof.P.F0] * level:
+                    hs[beltndof.H.MODE, k] = beltndof.STICK
+                    hs[beltndof.H.STICK_T0, k] = t_rel - stuck_s
+                    # a stuck mass moves with the belt: its start velocity is no free value (a fit that moved it,
+                    # seen at 1e3-4e7 m/s since nothing depended on it, made the contact chatter 3e5 times a window)
+                    s0[n + k] = vb
+                else:
+                    # read stuck, but the springs at the start pull harder than the static limit holds: the mass
+                    # broke away within the last samples (its slip speed still below the stick threshold). Started
+                    # stuck it would break at once from u = 0, late, and slip too far (seen: a window starting 4 ms
+                    # after a break, 21 um on a 1.4 um floor with the true law; the fit moved the start 9 um to
+                    # compensate). It starts slipping, from the static level, on the drop, start velocity free.
+                    hs[beltndof.H.SLIP_DIR, k] = 1.0 if need > 0.0 else -1.0
+                    hs[beltndof.H.FS_BREAK, k] = level
             else:
                 w = vb - float(c[f"x{k + 1}_dot"][i])
                 hs[beltndof.H.SLIP_DIR, k] = 1.0 if w >= 0.0 else -1.0
@@ -586,10 +588,6 @@ class BeltData(RigData):
         K = p[beltndof.P.K]
         damp = e[E.D_BELT] * math.sqrt(K * p[beltndof.P.M])
         return damp * vb + beltndof.chain_at(s0[:n], k, n, K)
-
-    def _breaking_away(self, p, e, s0, k, vb, stuck_s, rate_need) -> bool:
-        limit = p[beltndof.P.F0] * beltndof._static_limit(stuck_s, rate_need, p, e)
-        return abs(self._need_stuck(p, e, s0, k, vb)) > limit
 
 
 RIG_DATA: dict[str, type[RigData]] = {"brake-2dof": BrakeData, "drum-pendulum": DrumData, "belt-ndof": BeltData}

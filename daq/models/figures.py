@@ -86,7 +86,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ms = np.sqrt(np.mean((sh_all.pred[primary][:, 1:] - sh_all.meas[primary][:, 1:]) ** 2, axis=1))
     tw = m.t[session.win.starts]
     fitw, heldw = session.win.select(False), session.win.select(True)
-    flagged = np.setdiff1d(np.arange(tw.size), np.concatenate([fitw, heldw]))
+    flagged = np.setdiff1d(np.arange(tw.size), session.win.scored())
     ax.plot(tw[fitw], ms[fitw], "o", ms=3, label="fit windows")
     ax.plot(tw[heldw], ms[heldw], "s", ms=3, label="held-out windows (the error)")
     if flagged.size:

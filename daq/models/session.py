@@ -366,7 +366,7 @@ class Session:
         s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size)
         s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
         pr = s.problem(fitted.model)
-        allw = np.concatenate([s.win.select(False), s.win.select(True)])  # transients left out, as in the scores
+        allw = s.win.scored()  # transients left out, as in the scores
         vel = pr.fit_starts(fitted.values, allw, max_iter=25)
         ms = pr.window_errors(fitted.values, allw, vel.start_values)
         # A window whose start-velocity fit ran away (seen once in 90 windows on a 600 s record) is

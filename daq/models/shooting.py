@@ -56,6 +56,10 @@ class Windows:
             keep &= ~self.transient
         return np.flatnonzero(keep)
 
+    def scored(self) -> np.ndarray:
+        """Every window a score reads: the fit windows, then the held-out ones (flagged transients left out)."""
+        return np.concatenate([self.select(False), self.select(True)])
+
 
 def dominant_period(m: Measured, fmin: float = 0.5) -> float:
     """Period of the strongest oscillation of the primary signal (detrended) [s]."""
