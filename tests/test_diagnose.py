@@ -126,7 +126,9 @@ def test_a_candidate_does_not_take_the_credit_for_iterations_its_base_fit_lacked
     there converges and passes the step gates, but the model without it at that fit's values does as well, so
     it is not taken (the demo's false second claims, 3 runs of 9, came from an unconverged round-2 fit)."""
     rec = simulate(brake_cfg, rate=1000.0, seed=4, duration=12.0)
-    s = Session(rec, "sim", brake_cfg, max_windows=30)
+    # least squares: with Huber's stage (decision 26) a 2-iteration fit gets 2 more and is no longer far from its
+    # optimum (6.9 um against the candidate's 6.0), and this is about the gate, not the loss
+    s = Session(rec, "sim", brake_cfg, max_windows=30, loss="squares")
     m = seed_model("brake-2dof")
     m.friction["mu0"].value = 0.42
     m.friction["beta"].value = 0.55

@@ -212,6 +212,8 @@ def test_a_models_own_fit_goes_on_past_its_iteration_limit_while_it_converges(br
     full = s.fit(m, max_iter=3)  # a model's own fit: converge by default
     assert "after 3 iterations" in full.fit.message
     # (seen: 4405 against 4649 before the chain's refit from the file's values, decision 22, which gives the short fit
-    # a second 3-iteration run of its own: 4405 against 4406 now; the converged one is never higher, and converged)
-    assert full.fit.success and full.fit.cost <= short.fit.cost * (1 + 1e-9)
+    # a second 3-iteration run of its own: 4405 against 4406 now; the converged one is never higher, and converged;
+    # since the Huber stage (decision 26) both end at the same point, 4403.2867, within 6e-8 of each other: a stage
+    # stops when a step gains < 1e-4 of the cost, so 1e-6 is still far inside what "not higher" can resolve)
+    assert full.fit.success and full.fit.cost <= short.fit.cost * (1 + 1e-6)
     assert full.values["effects.accel-sign.amp"] == pytest.approx(0.15, abs=0.02)

@@ -94,7 +94,7 @@ def _session(args: argparse.Namespace):
     from daq.models.spec import load_model
 
     model = load_model(args.model)
-    s = Session.open(args.data, model, args.rig)  # before the first progress line: a bad file is one line
+    s = Session.open(args.data, model, args.rig, loss=args.loss)  # before the first progress line: a bad file is one line
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
     filled = s.rec.meta.get("filled")
     if filled:
@@ -104,7 +104,7 @@ def _session(args: argparse.Namespace):
         say("filled in by interpolation where the recording has no data: "
             + "; ".join(f"{n} samples of {', '.join(names)}" for n, names in by_count.items()))
     if s.m.outliers:
-        say("single-sample spikes repaired (cubic through the neighbours): "
+        say("spikes repaired (single samples and bursts of up to 3; the cubic through the samples beside them): "
             + ", ".join(f"{k} {v.size}" for k, v in s.m.outliers.items()))
     if s.m.averaged > 1:
         say(f"the file's {s.m.rate * s.m.averaged:g} Hz samples compared as block means of {s.m.averaged} (one per "
@@ -187,6 +187,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if far:
             print(f"  beyond {OUTLIER_SIGMAS:g} noise levels of the model (spikes left, or where it fails): "
                   + ", ".join(f"{k} {n} samples" for k, n in far.items()))
+        capped = {k: n for k, n in res["loss_capped"].items() if n}
+        if capped:
+            print(f"  {res['loss']} loss: counted linearly, not squared (beyond 3 x the window's residual scale): "
+                  + ", ".join(f"{k} {n} samples" for k, n in capped.items()))
         print("  invariants (measured / model): " + "; ".join(
             f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
         print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))
@@ -285,6 +289,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--model", required=True, help="model TOML")
         p.add_argument("--rig", help="rig of a CSV/TDMS file (default: the model's)")
         p.add_argument("--json", action="store_true")
+        p.add_argument("--loss", choices=("huber", "squares"), default="huber",
+                       help="of every fit: Huber's on the noise-scaled residual (default; a few bad samples cannot "
+                            "pull the fit) or plain least squares")
 
     p = sub.add_parser("fit", help="fit a model's free parameters (multiple shooting)")
     common(p)

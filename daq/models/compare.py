@@ -19,6 +19,7 @@ import numpy as np
 from daq.physics.contact import AUX
 from daq.signals import dominant_frequency, paper_spectrogram
 
+from . import robust
 from .session import Fitted, Session
 
 N_TIME_BINS = 10
@@ -34,13 +35,18 @@ def _rms(x: np.ndarray) -> float:
     return float(math.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
-def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def residual_samples(session: Session, fitted: Fitted) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
     """Sample indices and residuals (model - measured) of every scored window (fit and held-out; a flagged
     transient is not scored: one at ~1 mm made "all windows" 114 um against 30 um held out and every regime's
-    bar ~1e-4 m on a 750 000-sample belt record), start excluded."""
+    bar ~1e-4 m on a 750 000-sample belt record), start excluded; and per output how many of the samples the
+    fit's loss counts at less than their square (beyond Huber's threshold: robust.py)."""
     scored = session.win.scored()
-    shot = fitted.problem.shoot(fitted.values, scored, fitted.start_values(scored))
-    return shot.index[:, 1:].ravel(), {k: (shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel() for k in shot.pred}
+    pr = fitted.problem
+    shot = pr.shoot(fitted.values, scored, fitted.start_values(scored))
+    z = np.stack([(shot.pred[k][:, pr.r0:] - shot.meas[k][:, pr.r0:]) / session.m.sigma[k] for k in pr.outputs], axis=1)
+    capped = robust.downweighted(np.nan_to_num(z, nan=1e6), pr.loss)
+    return (shot.index[:, 1:].ravel(), {k: (shot.pred[k][:, 1:] - shot.meas[k][:, 1:]).ravel() for k in shot.pred},
+            {k: int(capped[i]) for i, k in enumerate(pr.outputs)})
 
 
 def residual_outliers(session: Session, res: dict[str, np.ndarray]) -> dict[str, int]:
@@ -90,13 +96,15 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     """The SPEC's compare JSON: error and noise floor of the primary signal, and the breakdowns."""
     m = session.m
     primary = session.primary
-    idx, res = residual_samples(session, fitted)
+    idx, res, capped = residual_samples(session, fitted)
     out: dict = {
         "data": session.source,
         "filled_samples": session.rec.meta.get("filled", {}),
         "start_from_data": session.law_guess,
         "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
         "residual_outliers": residual_outliers(session, res),
+        "loss": fitted.problem.loss,  # of the fit (robust.py): huber or squares
+        "loss_capped": capped,  # per output, scored samples beyond Huber's threshold (counted linearly, not squared)
         "averaged": session.m.averaged,  # the file's samples per compared sample (block means to the model's step)
         "model": fitted.model.describe(),
         "model_digest": fitted.model.digest(),

@@ -24,10 +24,10 @@ from daq.physics import beltndof, brake2dof, drum
 from daq.physics.contact import AUX
 from daq.physics.effects import DC_MIN, TAIL, E, stick_rates
 from daq.physics.jit import kernel
-from daq.signals import block_mean, noise_sigma, sg
+from daq.signals import block_mean, impulsive_runs, noise_sigma, sg
 from daq.sim.rigs import SimRig
 
-SPIKE_SIGMAS = 10.0  # a sample this many noise levels off the cubic through its neighbours is a spike
+SPIKE_SIGMAS = 10.0  # a run of samples this many noise levels off the cubic through its neighbours is a spike
 FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
 # belt-ndof's model steps per period of the chain's fastest linear mode (BeltData.model_step). Measured on the
 # belt seed model, one mass (3.2 Hz), each window of the 750 000-sample bench record simulated at 0.5 ms and at
@@ -142,20 +142,19 @@ class RigData(ABC):
         return tuple(c for c in MODEL_CHANNELS[self.rig] if c not in (self.drive_channel, "thrust", "drum_speed"))
 
     def _despike(self, name: str, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Single-sample spikes (impulsive noise) replaced by the cubic through their two neighbours on each side.
+        """Spikes (impulsive noise: single samples and bursts of up to three) replaced by the cubic through the two
+        samples on each side (daq.signals.impulsive_runs).
 
-        Why repair, not a robust loss alone: a spike also corrupts everything computed from the samples
-        around it before any fit runs (the smoothed velocities that say where the contact sticks, each window's
-        start state); and a spike of 100 noise units dominates the rms error a user is shown. A sample is a spike
-        when it stands more than SPIKE_SIGMAS noise levels off the cubic through its neighbours (a smooth motion,
-        stick-slip kinks included, is predicted to a fraction of the noise) and is the largest such departure
-        within two samples. Counted per channel and shown (``outliers`` in compare's and diagnose's JSON).
+        Why repair, not the robust loss alone: a spike also corrupts everything computed from the samples
+        around it before any fit runs (the smoothed velocities that say where the contact sticks, so the stick
+        clock aging is read from, each window's start state); and a spike of 100 noise units dominates the rms
+        error a user is shown. A run is a spike when every sample of it stands more than SPIKE_SIGMAS noise levels
+        off the cubic through its neighbours (a smooth motion, stick-slip kinks included, is predicted to a
+        fraction of the noise). Counted per channel and shown (``outliers`` in compare's and diagnose's JSON).
+        What is left (glitches under the threshold) the fit's Huber loss caps (robust.py).
         """
         if x.size < 5:
             return x, np.zeros(0, dtype=int)
-        pred = np.full(x.size, np.nan)
-        pred[2:-2] = (-x[:-4] + 4.0 * x[1:-3] + 4.0 * x[3:-1] - x[4:]) / 6.0
-        d = np.abs(np.nan_to_num(x - pred))
         # the noise the samples show, but never below what the instrument declares: a slow creep read through a
         # coarse quantiser has third differences that are mostly 0 (a data estimate of 0), and each of its steps
         # would read as a spike (seen: 22 of 2000 samples "repaired" on a noise-free 20 um/s creep at 10 um steps)
@@ -163,14 +162,8 @@ class RigData(ABC):
         sigma = max(est if np.isfinite(est) else 0.0, self._declared_sigma(name))
         if sigma <= 0.0:  # no noise level known: nothing can be called a spike
             return x, np.zeros(0, dtype=int)
-        big = d > SPIKE_SIGMAS * sigma
-        if not big.any():
-            return x, np.zeros(0, dtype=int)
-        local_max = d >= np.maximum.reduce([np.roll(d, k) for k in (-2, -1, 1, 2)])
-        idx = np.flatnonzero(big & local_max)
-        out = x.copy()
-        out[idx] = pred[idx]
-        return out, idx
+        out, idx = impulsive_runs(x, SPIKE_SIGMAS * sigma)
+        return (out, idx) if idx.size else (x, idx)
 
     @abstractmethod
     def _prepare(self, rec: Recording, t: np.ndarray, rate: float, source: str) -> Measured: ...

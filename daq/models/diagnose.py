@@ -194,7 +194,7 @@ def _fit_task(task) -> tuple:
     root: Model = _STATE["root"]  # type: ignore[assignment]
     f = s.fit(_extend(root, task), warm=current, cold=_STATE.get("cold"))  # type: ignore[arg-type]
     return task, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit, f.fit.cost, \
-        f.fit.message, f.problem.weights
+        f.fit.message, f.problem.weights, f.problem.sample_weights
 
 
 def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidate, ...]], workers: int | None = None,
@@ -218,13 +218,13 @@ def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidat
                     if task == FLOOR:
                         floors.update(rest[0])  # type: ignore[union-attr]
                         continue
-                    values, vel, vel_held, std, ms_held, ms_fit, cost, message, weights = rest
+                    values, vel, vel_held, std, ms_held, ms_fit, cost, message, weights, sample_weights = rest
                     model = _extend(root, task)
                     free = model.free_names()
                     fr = ShootingFit(values, free, std, vel, session.win.select(False), cost, 0, True, message)
                     hr = ShootingFit(values, [], {}, vel_held, session.win.select(True), float("nan"), 0, True)
                     pr = session.problem(model)
-                    pr.weights = weights
+                    pr.weights, pr.sample_weights = weights, sample_weights
                     out[task] = Fitted(model.with_values({k: values[k] for k in free}, std), values, fr, hr, pr,
                                        ms_held, ms_fit)
                     if on_done:

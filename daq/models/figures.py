@@ -14,6 +14,7 @@ from daq.io.png import save_png  # noqa: E402
 from daq.physics.contact import AUX  # noqa: E402
 from daq.signals import paper_spectrogram, sg  # noqa: E402
 
+from .compare import OUTLIER_SIGMAS  # noqa: E402
 from .diagnose import MIN_STEP  # noqa: E402
 from .session import Fitted, Session  # noqa: E402
 
@@ -40,6 +41,13 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
         t = m.t[shot.index[j]]
         ax.plot(t, shot.meas[primary][j], "k.", ms=2, label="measured")
         ax.plot(t, shot.pred[primary][j], "C1-", lw=1.2, label="model from the data's state")
+        far = np.abs(shot.pred[primary][j] - shot.meas[primary][j]) > OUTLIER_SIGMAS * m.sigma[primary]
+        fixed = np.isin(shot.index[j], m.outliers.get(primary, np.zeros(0, int)) // m.averaged)  # (file's samples)
+        if far.any():
+            ax.plot(t[far], shot.meas[primary][j][far], "x", color="C3", ms=6,
+                    label=f"> {OUTLIER_SIGMAS:g} noise levels off the model")
+        if fixed.any():
+            ax.plot(t[fixed], shot.meas[primary][j][fixed], "o", mfc="none", color="C2", ms=6, label="spike repaired")
         ax.set_xlabel("t [s]")
         if j == 0:
             ax.set_ylabel(f"{primary} [{unit}]")
@@ -78,6 +86,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax.barh(names, vals, color=["C3" if k == result["worst_regime"] else "C0" for k in names])
     ax.axvline(result["noise_floor"], color="k", ls="--", label="noise floor")
     ax.set_xlabel(f"rms error [{unit}]")
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))  # (plain metres overlapped: 0.0000250000)
     ax.set_title("error by regime")
     ax.legend(fontsize=8)
     ax.tick_params(axis="y", labelsize=8)
@@ -110,7 +119,10 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax = fig.add_subplot(gs[2, 2])
     ax.axis("off")
     lines = [f"error {result['error']:.3g} {unit} (noise floor {result['noise_floor']:.3g})",
-             f"(on held-out windows; all windows {result['error_all_windows']:.3g})", ""]
+             f"(on held-out windows; all windows {result['error_all_windows']:.3g})",
+             f"loss {result['loss']}; samples counted linearly {sum(result['loss_capped'].values())}",
+             f"spikes repaired {sum(result['outliers'].values())}; "
+             f"> {OUTLIER_SIGMAS:g} noise levels off {sum(result['residual_outliers'].values())}", ""]
     for k, d in result["invariants"].items():
         lines.append(f"{k}: measured {d['measured']:.4g}, model {d['model']:.4g}")
     lines.append("")

@@ -84,6 +84,7 @@ def column(session: Session, current: Fitted, cand: Candidate, lin: Linearisatio
     model = cand.apply(current.model)
     pr = session.problem(model)
     pr.weights = current.problem.weights  # the same windows count as in the fit
+    pr.sample_weights = current.problem.sample_weights  # ... and the same samples (the fit's robust loss)
     fw = current.fit.windows
     values = dict(pr.builder.base_values)
     values.update({k: v for k, v in current.values.items() if k in values})

@@ -21,6 +21,7 @@ from daq.io.interchange import Recording
 from daq.io.loading import load_data
 from daq.physics.effects import CATALOG, TAIL
 
+from . import robust
 from .build import Builder
 from .data import Measured, RigData, rig_data
 from .shooting import Problem, ShootingFit, Windows, make_windows, window_weights
@@ -82,9 +83,13 @@ class Fitted:
 
 
 class Session:
-    def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90) -> None:
+    def __init__(self, rec: Recording, source: str, cfg: RigConfig, max_windows: int = 90,
+                 loss: str = robust.HUBER) -> None:
+        if loss not in robust.LOSSES:
+            raise InputError("--loss", "--loss", f"{loss!r} is not one of {', '.join(robust.LOSSES)}")
         self.source = source
         self.cfg = cfg
+        self.loss = loss  # of every fit of this session's models (robust.py)
         self.rd: RigData = rig_data(cfg, source)
         self.m: Measured = self.rd.prepare(rec, source)
         self.rec: Recording = self.m.recording  # what the model sees: spikes repaired, averaged to its rate
@@ -104,7 +109,7 @@ class Session:
         return self.m.primary
 
     def problem(self, model: Model) -> Problem:
-        return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model))
+        return Problem(Builder(model), self.rd, self.m, self.win, drive_source(model), loss=self.loss)
 
     def fit(self, model: Model, warm: Fitted | None = None, max_iter: int = 40,
             cold: dict[str, float] | None = None, converge: bool | None = None) -> Fitted:
@@ -223,9 +228,10 @@ class Session:
         # global cost hides; re-fit every fit window's start values from the data (parameters fixed, as
         # for held-out windows) and keep, per window, the better of the two.
         again = pr.fit_starts(res.values, fw, max_iter=25)
-        e_joint = self.weighted(pr.window_errors(res.values, fw, res.start_values))
-        e_again = self.weighted(pr.window_errors(res.values, fw, again.start_values))
+        e_joint = pr.window_costs(res.values, fw, res.start_values)
+        e_again = pr.window_costs(res.values, fw, again.start_values)
         res.start_values = np.where((e_again < e_joint)[:, None], again.start_values, res.start_values)
+        pr.settle_weights(res.values, fw, res.start_values)
         held, ms_held = self.held_out(pr, res.values) if hw.size else (res, {})
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
         return Fitted(fitted_model, res.values, res, held, pr, ms_held,
@@ -246,24 +252,34 @@ class Session:
         they changed, once more from the full fit's, which then continues."""
         half = max(MIN_CONTINUATION, self.win.length // 2)
         probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
-        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half)
+        ls = robust.SQUARES
+        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half, loss=ls)
                     for values, vel in starts), key=lambda f: f.cost)
         if probe < max_iter // 2:
             best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
-                          max_iter=max_iter // 2 - probe, length=half)
+                          max_iter=max_iter // 2 - probe, length=half, loss=ls)
         if reweight:
             pr.weights = window_weights(pr.window_costs(best.values, fw, best.start_values), fw, self.win.starts.size)
-        res = pr.fit(best.values, free, bounds, fw, start_values=best.start_values, max_iter=max_iter)
+        res = pr.fit(best.values, free, bounds, fw, start_values=best.start_values, max_iter=max_iter, loss=ls)
         if reweight:
             w = window_weights(pr.window_costs(res.values, fw, res.start_values), fw, self.win.starts.size)
             if np.any(np.abs(np.log(w[fw] / pr.weights[fw])) > math.log(2.0)):
                 pr.weights = w
-                res = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=max_iter // 2)
+                res = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=max_iter // 2,
+                             loss=ls)
         if converge and not res.success and CONVERGE_ITER > max_iter:
-            more = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=CONVERGE_ITER - max_iter)
+            more = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=CONVERGE_ITER - max_iter,
+                          loss=ls)
             more.nfev += res.nfev
             more.message += f" (after {max_iter} iterations: {res.message})"
             res = more if more.cost <= res.cost else res
+        if pr.loss != ls:  # the robust loss from where least squares converged (robust.py: why not from the start)
+            robust_fit = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=max_iter,
+                                loss=pr.loss)
+            robust_fit.nfev += res.nfev
+            robust_fit.success = robust_fit.success and res.success  # converged only if both stages did
+            robust_fit.message = f"{res.message}; then {pr.loss} loss: {robust_fit.message}"
+            res = robust_fit
         return res
 
     def _restart_cold(self, pr: Problem, res: ShootingFit, cold: dict[str, float], new: set[str], free: list[str],
@@ -363,7 +379,7 @@ class Session:
             noise = np.asarray(self.rec.channels["temp"], dtype=float)[idx] - self.m.temp[idx]
             ch["temp"] = states[:, sim.n_mech + TAIL.TEMP] + np.roll(noise, int(rng.integers(1, max(noise.size, 2))))
         syn = Recording(self.rec.rig, self.m.t[idx], ch, self.rec.units, {}, {})
-        s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size)
+        s = Session(syn, f"{self.source} (synthetic)", self.cfg, max_windows=self.win.starts.size, loss=self.loss)
         s.m.sigma = dict(self.m.sigma)  # same noise model, not a re-estimate
         pr = s.problem(fitted.model)
         allw = s.win.scored()  # transients left out, as in the scores

@@ -23,6 +23,7 @@ import numpy as np
 
 from daq.physics.contact import N_AUX
 
+from . import robust
 from .build import Builder
 from .data import Measured, RigData
 
@@ -233,6 +234,10 @@ class Problem:
     win: Windows
     drive: str = "command"  # or "measured"
     weights: np.ndarray | None = None  # per window (all windows): its cost's weight in a fit (see window_weights)
+    loss: str = robust.HUBER  # of every fit (robust.py)
+    # (all windows, outputs, samples): each sample's weight in the weighted squares that stand for the loss at the
+    # last fit of its window (robust.evaluate); what residuals() hands to the linearisation of a fit (screening)
+    sample_weights: np.ndarray | None = None
     _cache: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -289,31 +294,50 @@ class Problem:
         meas = {k: v[windows, :L] for k, v in self.meas.items()}
         return Shot(windows, pred, meas, states, aux, self.idx[windows, :L])
 
+    def scaled(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None,
+               length: int | None = None) -> np.ndarray:
+        """(pred - meas)/sigma per window, output and sample (from the start sample when positions are free), no
+        weights: (n_win, n_out, L - r0); a window the integrator gave up on is 1e6 everywhere."""
+        shot = self.shoot(values, windows, start_values, length)
+        z = np.stack([(shot.pred[k][:, self.r0:] - shot.meas[k][:, self.r0:]) / self.m.sigma[k]
+                      for k in self.outputs], axis=1)
+        return np.nan_to_num(z, nan=1e6, posinf=1e6, neginf=-1e6)
+
     def residuals(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None,
                   length: int | None = None) -> np.ndarray:
-        """(pred - meas)/sigma for every output, window and sample (from the start sample when positions are free), flattened."""
-        shot = self.shoot(values, windows, start_values, length)
-        parts = [(shot.pred[k][:, self.r0:] - shot.meas[k][:, self.r0:]) / self.m.sigma[k] for k in self.outputs]
-        r = np.stack(parts, axis=1).reshape(windows.size, -1)  # (n_win, n_out*(L-r0))
+        """The scaled residuals as the last fit of their windows weighted them (windows' weights, and the loss's
+        sample weights), flattened: a linearisation at that fit sees the fit's own local least-squares problem."""
+        z = self.scaled(values, windows, start_values, length)
+        if self.sample_weights is not None:
+            z = z * np.sqrt(self.sample_weights[windows][:, :, self.r0:self.r0 + z.shape[2]])
+        r = z.reshape(windows.size, -1)  # (n_win, n_out*(L-r0))
         if self.weights is not None:
             r = r * np.sqrt(self.weights[windows])[:, None]
-        return np.nan_to_num(r.ravel(), nan=1e6, posinf=1e6, neginf=-1e6)
+        return r.ravel()
 
     def window_costs(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray) -> np.ndarray:
-        """0.5 |r|^2 per window, unweighted."""
-        w, self.weights = self.weights, None
-        try:
-            r = self.residuals(values, windows, start_values).reshape(windows.size, -1)
-        finally:
-            self.weights = w
-        return 0.5 * np.sum(r * r, axis=1)
+        """The loss per window, without the windows' weights."""
+        return robust.evaluate(self.scaled(values, windows, start_values), self.loss)[0]
+
+    def settle_weights(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray) -> None:
+        """The loss's sample weights of ``windows`` at these values (after a fit's start values were exchanged)."""
+        z = self.scaled(values, windows, start_values)
+        self._keep_weights(windows, robust.evaluate(z, self.loss)[1])
+
+    def _keep_weights(self, windows: np.ndarray, w: np.ndarray) -> None:
+        """Store the loss's sample weights of whole ``windows`` (n_win, n_out, L - r0) for residuals()."""
+        sw = (np.ones((self.win.starts.size, len(self.outputs), self.win.length)) if self.sample_weights is None
+              else self.sample_weights.copy())  # (another problem may hold the same array: no writes into it)
+        sw[windows, :, self.r0:] = w
+        self.sample_weights = sw
 
     # ------------------------------------------------------------------ fitting
 
     def fit(self, values: dict[str, float], free: list[str], bounds: dict[str, tuple[float, float]],
             windows: np.ndarray, start_values: np.ndarray | None = None, max_iter: int = 25,
-            length: int | None = None) -> ShootingFit:
-        """Least squares over the free parameters and every window's start values.
+            length: int | None = None, loss: str | None = None) -> ShootingFit:
+        """The loss (``loss``, default the problem's: robust.py) over the free parameters and every window's start
+        values.
 
         Levenberg-Marquardt on the block structure of multiple shooting: the start
         values of one window touch only that window's residuals, so the normal
@@ -325,7 +349,10 @@ class Problem:
         start values, so the update keeps the block structure), and re-computed by finite
         differences whenever a step fails or convergence is to be declared. Simulations
         are the whole cost: this cuts them per iteration from k + n_start + 1 to about 1.
-        The reported uncertainties always come from a finite-difference Jacobian.
+        The reported uncertainties always come from a finite-difference Jacobian. A robust loss enters as
+        iteratively reweighted least squares: the step is the weighted Gauss-Newton step with each sample's weight
+        at the current iterate (robust.evaluate), a trial is accepted only if the loss itself falls, and the
+        Jacobian is carried for the unweighted residuals (the weights change from one iterate to the next).
         """
         broyden = BROYDEN
         values = dict(values)
@@ -335,13 +362,20 @@ class Problem:
         theta = np.clip(np.array([values[n] for n in free], dtype=float), lo, hi)
         V = (self.default_starts(windows) if start_values is None else np.array(start_values, dtype=float))
         nfev = 0
+        ww = self.weights[windows] if self.weights is not None else np.ones(nw)
+        loss_name = loss or self.loss
 
         def resid(th: np.ndarray, vel: np.ndarray) -> np.ndarray:
             nonlocal nfev
             nfev += 1
             vals = dict(values)
             vals.update({n: float(th[i]) for i, n in enumerate(free)})
-            return self.residuals(vals, windows, vel, length).reshape(nw, -1)
+            return self.scaled(vals, windows, vel, length).reshape(nw, -1)
+
+        def loss(z: np.ndarray) -> tuple[float, np.ndarray]:
+            """The loss (windows' weights applied) and each residual's weight in the weighted squares."""
+            per_window, w = robust.evaluate(z.reshape(nw, len(self.outputs), -1), loss_name)
+            return float(np.sum(ww * per_window)), ww[:, None] * w.reshape(nw, -1)
 
         vscale = np.maximum(np.abs(V).mean(axis=0), 1e-3)
 
@@ -357,7 +391,7 @@ class Problem:
             return jg, start_jacobian(lambda vp: resid(th, vp), vel, r, vscale)
 
         R = resid(theta, V)
-        cost = 0.5 * float(np.sum(R * R))
+        cost, W = loss(R)
         lam = 1e-2
         success, message = False, "iteration limit"
         Jg, Jv = jacobian(theta, V, R)
@@ -365,11 +399,14 @@ class Problem:
         it = 0
         while it < max_iter:
             it += 1
-            A = np.einsum("wri,wrj->ij", Jg, Jg)
-            B = np.einsum("wri,wrj->wij", Jg, Jv)
-            C = np.einsum("wri,wrj->wij", Jv, Jv)
-            ga = np.einsum("wri,wr->i", Jg, R)
-            gc = np.einsum("wrj,wr->wj", Jv, R)
+            sw = np.sqrt(W)[..., None]
+            Jgw, Jvw = Jg * sw, Jv * sw
+            Rw = R * sw[..., 0]
+            A = np.einsum("wri,wrj->ij", Jgw, Jgw)
+            B = np.einsum("wri,wrj->wij", Jgw, Jvw)
+            C = np.einsum("wri,wrj->wij", Jvw, Jvw)
+            ga = np.einsum("wri,wr->i", Jgw, Rw)
+            gc = np.einsum("wrj,wr->wj", Jvw, Rw)
             improved = False
             for _try in range(14 if fresh else 2):
                 Ad = A + lam * np.diag(np.diag(A) + 1e-12)
@@ -383,7 +420,7 @@ class Problem:
                 th_new = np.clip(theta + dth, lo, hi)
                 V_new = V + dV
                 R_new = resid(th_new, V_new)
-                cost_new = 0.5 * float(np.sum(R_new * R_new))
+                cost_new, W_new = loss(R_new)
                 if np.isfinite(cost_new) and cost_new < cost:
                     improved = True
                     rel = (cost - cost_new) / max(cost, 1e-300)
@@ -394,7 +431,7 @@ class Problem:
                         u = (R_new - R - pred) / np.maximum(norm2, 1e-300)[:, None]
                         Jg = Jg + u[:, :, None] * st[None, None, :]
                         Jv = Jv + u[:, :, None] * sV[:, None, :]
-                    theta, V, R, cost = th_new, V_new, R_new, cost_new
+                    theta, V, R, cost, W = th_new, V_new, R_new, cost_new, W_new
                     lam = max(lam / 5.0, 1e-7)
                     break
                 lam *= 4.0
@@ -415,7 +452,10 @@ class Problem:
             Jg, Jv = jacobian(theta, V, R)
         vals = dict(values)
         vals.update({n: float(theta[i]) for i, n in enumerate(free)})
-        std = self._stds(Jg if k else None, Jv, cost, R.size, k, nv, nw, free)
+        sw = np.sqrt(W)[..., None]
+        std = self._stds(Jg * sw if k else None, Jv * sw, 0.5 * float(np.sum(W * R * R)), R.size, k, nv, nw, free)
+        if length is None or length == self.win.length:
+            self._keep_weights(windows, (W / ww[:, None]).reshape(nw, len(self.outputs), -1))
         return ShootingFit(vals, list(free), std, V.copy(), windows, cost, nfev, success, message)
 
     @staticmethod
@@ -443,16 +483,32 @@ class Problem:
         windows are independent, and a shared damping and a shared accept/reject let one window
         that needs small steps (near a break-away) stall while the summed cost still falls. Each
         window here keeps its own damping and stops on its own; the simulations stay batched
-        (one call per trial over the windows still iterating).
+        (one call per trial over the windows still iterating). Least squares first, then the problem's loss from
+        there, as Session fits the parameters (robust.py says why).
         """
+        first = self._fit_starts(values, windows, self.default_starts(windows), robust.SQUARES, max_iter)
+        if self.loss == robust.SQUARES:
+            return first
+        res = self._fit_starts(values, windows, first.start_values, self.loss, max_iter)
+        res.nfev += first.nfev
+        return res
+
+    def _fit_starts(self, values: dict[str, float], windows: np.ndarray, V: np.ndarray, loss_name: str,
+                    max_iter: int) -> ShootingFit:
+        """fit_starts' Levenberg-Marquardt per window from start values ``V`` under one loss."""
         nw, nv = windows.size, self.n_start
-        V = self.default_starts(windows)
+        V = np.array(V, dtype=float)
         nfev = 0
+        ww = self.weights[windows] if self.weights is not None else np.ones(nw)
 
         def resid(vel: np.ndarray, rows: np.ndarray) -> np.ndarray:
             nonlocal nfev
             nfev += 1
-            return self.residuals(values, windows[rows], vel).reshape(rows.size, -1)
+            return self.scaled(values, windows[rows], vel).reshape(rows.size, -1)
+
+        def loss(z: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            per_window, w = robust.evaluate(z.reshape(rows.size, len(self.outputs), -1), loss_name)
+            return ww[rows] * per_window, ww[rows, None] * w.reshape(rows.size, -1)
 
         vscale = np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv)
 
@@ -461,7 +517,7 @@ class Problem:
 
         allr = np.arange(nw)
         R = resid(V, allr) if nw else np.zeros((0, 0))
-        cost = 0.5 * np.sum(R * R, axis=1)
+        cost, W = loss(R, allr) if nw else (np.zeros(0), np.zeros((0, 0)))
         J = jac(V, allr, R) if nw else np.zeros((0, 0, nv))
         lam = np.full(nw, START_DAMPING)
         active = np.ones(nw, bool)
@@ -470,7 +526,8 @@ class Problem:
             rows = np.flatnonzero(active)
             if not rows.size:
                 break
-            Jr, Rr = J[rows], R[rows]
+            sw = np.sqrt(W[rows])
+            Jr, Rr = J[rows] * sw[..., None], R[rows] * sw
             C = np.einsum("wri,wrj->wij", Jr, Jr)
             g = np.einsum("wri,wr->wi", Jr, Rr)
             D = np.einsum("wii->wi", C) + 1e-12
@@ -488,11 +545,11 @@ class Problem:
             dV = -np.linalg.solve(Cd, g[..., None])[..., 0]
             Vt = V[rows] + dV
             Rt = resid(Vt, rows)
-            ct = 0.5 * np.sum(Rt * Rt, axis=1)
+            ct, Wt = loss(Rt, rows)
             ok = np.isfinite(ct) & (ct < cost[rows])
             rel = np.where(ok, (cost[rows] - ct) / np.maximum(cost[rows], 1e-300), 0.0)
             acc = rows[ok]
-            V[acc], R[acc], cost[acc] = Vt[ok], Rt[ok], ct[ok]
+            V[acc], R[acc], cost[acc], W[acc] = Vt[ok], Rt[ok], ct[ok], Wt[ok]
             lam[acc] = np.maximum(lam[acc] / 5.0, 1e-7)
             lam[rows[~ok]] *= 4.0
             fails[acc] = 0
@@ -504,6 +561,8 @@ class Problem:
             if redo.size:
                 J[redo] = jac(V[redo], redo, R[redo])
         # summary over windows, as the joint fit reports it
+        if nw:
+            self._keep_weights(windows, (W / ww[:, None]).reshape(nw, len(self.outputs), -1))
         message = "converged" if not active.any() else "iteration limit"
         return ShootingFit(dict(values), [], {}, V, windows, float(np.sum(cost)), nfev, not active.any(), message)
 
