@@ -8,15 +8,14 @@ before any derivative is taken, without touching clean records.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.io
 
-from daq.cli.main import main as daq
+from helpers import G, K, M, slider_compare, slider_rig
+
 from daq.config import load_rig, rig_path
 from daq.io.interchange import Recording, write_csv
 from daq.models.data import rig_data, stuck_by_hysteresis
@@ -32,18 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim)
 from refsim import belt as ref_belt, effects as ref_effects  # noqa: E402
 from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
 
-M, K, G = 0.05, 200.0, 9.81
-
-
-def slider_rig(tmp_path: Path) -> Path:
-    """The spring-slider of docs/examples/spring-slider.md as a user's belt-ndof rig file."""
-    text = rig_path("belt-ndof").read_text()
-    text = text.replace("mass_kg = 0.5", f"mass_kg = {M}").replace("normal_force_N = 4.905", f"normal_force_N = {M * G}")
-    assert 'driven = "belt"' in text
-    text = text.replace('driven = "belt"', 'driven = "spring"', 1)  # the driver pulls the spring; the track is fixed
-    path = tmp_path / "slider-rig.toml"
-    path.write_text(text)
-    return path
 
 
 @pytest.mark.parametrize("b", [0.0, 0.05])
@@ -209,16 +196,7 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     e = slider_simulate(Slider(M, K, M * G, f_s0=0.62, f_k0=0.45, k_fall=0.1, b=0.0), drive, t)
     rng = np.random.default_rng(2)
     f_over_mg = np.round((K * e / (M * G) + rng.normal(0, 5e-4, t.size)) / 1e-3) * 1e-3
-    scipy.io.savemat(tmp_path / "slider.mat", {"t": t, "F_over_mg": f_over_mg})
-    rig = slider_rig(tmp_path)
-    rig.write_text(rig.read_text().replace("noise_std = 2e-5\nlsb = 1e-5", f"noise_std = {5e-4 * M * G / K:.3g}\n"
-                                           f"lsb = {1e-3 * M * G / K:.3g}", 1).replace("rate_Hz = 250.0", "rate_Hz = 500.0"))
-    h5, model = tmp_path / "slider.h5", tmp_path / "model.toml"
-    assert daq(["import", str(tmp_path / "slider.mat"), "--rig", str(rig), "--map", f"x1=F_over_mg*{M}*{G}/{K}",
-                "--map", f"vb={steps}", "-o", str(h5)]) == 0
-    assert daq(["model", "init", str(rig), "-o", str(model)]) == 0
-    assert daq(["compare", str(h5), "--model", str(model), "--no-history", "--report", str(tmp_path / "cmp")]) == 0
-    res = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    res = slider_compare(tmp_path, t, f_over_mg, steps)
     assert abs(res["start_from_data"]["friction.f_s0"] - 0.62) < 0.05
     assert abs(res["start_from_data"]["friction.f_k0"] - 0.45) < 0.05
     law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0")}

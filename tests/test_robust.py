@@ -9,17 +9,15 @@ and 1 kHz, where it must touch nothing.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.io
+from helpers import G, K, M, slider_compare
 from scipy.optimize import least_squares
 
-from daq.cli.main import main as daq
-from daq.config import load_rig, rig_path
+from daq.config import load_rig
 from daq.io.interchange import Recording
 from daq.models import robust
 from daq.models.data import rig_data
@@ -66,8 +64,16 @@ def test_the_threshold_follows_a_window_the_model_misses_everywhere():
     z[0] *= 20.0  # misfit everywhere
     z[1, 0, 7] = 40.0  # one bad sample
     _, w = robust.evaluate(z)
-    assert np.mean(w[0] < 1.0) < 0.01  # (Gaussian tails beyond 3 of its own scale)
+    assert np.mean(w[0] < 1.0) < 0.02  # (Gaussian tails beyond 3 of its own scale: 0.27 %)
     assert w[1, 0, 7] < 0.1 and np.mean(w[1] < 1.0) < 0.02
+
+
+def test_a_stage_runs_only_where_more_samples_stand_beyond_the_threshold_than_noise_puts_there():
+    rng = np.random.default_rng(2)
+    z = rng.normal(0.0, 1.0, (60, 1, 300))
+    assert not robust.contaminated(z) and not robust.contaminated(5.0 * z)  # noise, or a broad misfit
+    z[rng.random(z.shape) < 0.01] += 12.0  # 1 % glitches
+    assert robust.contaminated(z) and not robust.contaminated(z, robust.SQUARES)
 
 
 # ----------------------------------------------------------------------------- the fit
@@ -88,8 +94,9 @@ def belt_glitched():
 
 def test_our_irls_levenberg_marquardt_reaches_scipys_huber_estimate(belt_glitched):
     """The same residuals (model - measured over 6 windows, two law parameters and every window's start values
-    free) minimised under Huber's loss by our fit and by scipy.optimize.least_squares(loss="huber"). The noise level
-    is declared 1.6x too high, so every window's scale is 1 and the threshold is scipy's f_scale = 3."""
+    free) minimised under Huber's loss by our fit (least squares, then Huber's stage from there, as Session does)
+    and by scipy.optimize.least_squares(loss="huber"). The noise level is declared 1.6x too high, so every window's
+    scale is 1 and the threshold is scipy's f_scale = 3."""
     cfg, _, rec = belt_glitched
     s = Session(rec, "glitched", cfg, max_windows=9)
     s.m.sigma = {k: 1.6 * v for k, v in s.m.sigma.items()}
@@ -100,7 +107,7 @@ def test_our_irls_levenberg_marquardt_reaches_scipys_huber_estimate(belt_glitche
     fw = s.win.select(False)
     start = {**pr.builder.base_values, "friction.f_k0": 0.95, "friction.k_fall": 0.27}
     ls = pr.fit(start, free, bounds, fw, max_iter=60, loss=robust.SQUARES)
-    ours = pr.fit(ls.values, free, bounds, fw, start_values=ls.start_values, max_iter=60, loss=robust.HUBER)
+    ours = pr.fit(ls.values, free, bounds, fw, start_values=ls.start_values, max_iter=60, loss=robust.HUBER, after=ls)
     assert ours.success
     z = pr.scaled(ours.values, fw, ours.start_values)
     assert np.all(robust.scale(z) == 1.0)  # the premise: one threshold, scipy's
@@ -115,9 +122,10 @@ def test_our_irls_levenberg_marquardt_reaches_scipys_huber_estimate(belt_glitche
     x0 = np.r_[[ls.values[n] for n in free], ls.start_values.ravel()]
     ref = least_squares(fun, x0, loss="huber", f_scale=robust.HUBER_C, x_scale="jac", xtol=1e-12, ftol=1e-12)
     assert ref.success
-    assert ours.cost == pytest.approx(ref.cost, rel=2e-4)  # scipy's cost is the same Huber sum
+    assert ours.cost == pytest.approx(ref.cost, rel=5e-5)  # scipy's cost is the same Huber sum
+    # (our stage stops where its step would move the parameters by < STAGE_SHIFT = 0.1 standard errors jointly)
     for i, n in enumerate(free):
-        assert abs(ours.values[n] - ref.x[i]) < 0.1 * ours.std[n], (n, ours.values[n], ref.x[i], ours.std[n])
+        assert abs(ours.values[n] - ref.x[i]) < 0.2 * ours.std[n], (n, ours.values[n], ref.x[i], ours.std[n])
     # and it is not least squares: the glitches (all one sign) pulled that one elsewhere
     assert max(abs(ls.values[n] - ref.x[i]) / ours.std[n] for i, n in enumerate(free)) > 0.3
 
@@ -172,7 +180,6 @@ def test_a_lab_slider_record_with_bursts_goes_through_the_users_path_at_the_nois
     only, quantised) with 25 bursts of one to three samples 30-60 noise levels off: `import --map` -> `model init`
     -> `compare`. The bursts are repaired and counted, the law is the true one, and the error sits at the floor;
     with the single-sample rule the same record scored 3.3 um against a 1.4 um floor."""
-    M, K, G = 0.05, 200.0, 9.81
     t = np.arange(16 * 500) / 500.0
     steps = "4e-3 - 3e-3*min(1, max(0, (t - 8)*1000))"
     e = slider_simulate(Slider(M, K, M * G, f_s0=0.62, f_k0=0.45, k_fall=0.1, b=0.0),
@@ -185,19 +192,7 @@ def test_a_lab_slider_record_with_bursts_goes_through_the_users_path_at_the_nois
         k = int(rng.integers(1, 4))
         f[i:i + k] += rng.choice([-1, 1], k) * rng.uniform(30, 60, k) * 5e-4
         n_bad += k
-    scipy.io.savemat(tmp_path / "slider.mat", {"t": t, "F_over_mg": np.round(f / 1e-3) * 1e-3})
-    text = rig_path("belt-ndof").read_text()
-    text = text.replace("mass_kg = 0.5", f"mass_kg = {M}").replace("normal_force_N = 4.905", f"normal_force_N = {M * G}")
-    text = text.replace('driven = "belt"', 'driven = "spring"', 1).replace("rate_Hz = 250.0", "rate_Hz = 500.0")
-    text = text.replace("noise_std = 2e-5\nlsb = 1e-5", f"noise_std = {5e-4 * M * G / K:.3g}\nlsb = {1e-3 * M * G / K:.3g}", 1)
-    rig = tmp_path / "slider-rig.toml"
-    rig.write_text(text)
-    h5, model = tmp_path / "slider.h5", tmp_path / "model.toml"
-    assert daq(["import", str(tmp_path / "slider.mat"), "--rig", str(rig), "--map", f"x1=F_over_mg*{M}*{G}/{K}",
-                "--map", f"vb={steps}", "-o", str(h5)]) == 0
-    assert daq(["model", "init", str(rig), "-o", str(model)]) == 0
-    assert daq(["compare", str(h5), "--model", str(model), "--no-history", "--report", str(tmp_path / "cmp")]) == 0
-    res = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    res = slider_compare(tmp_path, t, np.round(f / 1e-3) * 1e-3, steps)
     assert res["outliers"]["x1"] == n_bad, (res["outliers"], n_bad)
     assert res["loss"] == "huber" and "x1" in res["loss_capped"]
     law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0")}

@@ -275,7 +275,7 @@ class Session:
             res = more if more.cost <= res.cost else res
         if pr.loss != ls:  # the robust loss from where least squares converged (robust.py: why not from the start)
             robust_fit = pr.fit(res.values, free, bounds, fw, start_values=res.start_values, max_iter=max_iter,
-                                loss=pr.loss)
+                                loss=pr.loss, after=res)  # (least squares' last Jacobian and residuals)
             robust_fit.nfev += res.nfev
             robust_fit.success = robust_fit.success and res.success  # converged only if both stages did
             robust_fit.message = f"{res.message}; then {pr.loss} loss: {robust_fit.message}"
