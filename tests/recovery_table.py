@@ -7,7 +7,9 @@ shared with daq/physics) with effects in *other* published forms than the catalo
 aging, friction keyed to the body's acceleration, Arrhenius temperature, a second-order drive with a
 rippled belt, a power-law force rate, ...), on ramps other than the seed's, at 1 kHz and 100 Hz; single
 and paired effects; nothing hidden; an off-catalog effect (surface waviness periodic in belt travel);
-a rig a few per cent off its config (a stiffer spring). It is judged as a user would run it:
+a rig a few per cent off its config (a stiffer spring); and "dirty" records, which carry what a real file does
+besides noise and quantisation (DIRT: spikes, bursts of 2-3 bad samples, clock jitter). It is judged as a user
+would run it:
 
     daq model init RIG -o m.toml ; daq compare DATA --model m.toml      (error e0, noise floor f0)
     daq diagnose DATA --model m.toml                                    (round 1: the sequence it names)
@@ -63,6 +65,7 @@ class Case:
     kind: str = "single"  # single | pair | null | off-catalog | stiffness
     remove: tuple[str, ...] = ()  # effects removed from the seed model after `model init` (belt-ndof)
     masses: int = 1  # belt-ndof: a user's rig file with this many masses when > 1
+    dirty: bool = False  # a real file's defects on top of noise and quantisation (DIRT)
 
 
 SINGLES = [
@@ -96,11 +99,24 @@ BELT_SINGLES = [
 ]
 
 
+# what a real file carries besides noise and quantisation (issue 14): single-sample spikes (1 in 1000 samples),
+# bursts of 2-3 bad samples (1 in 2000), spikes 30 noise levels, clock jitter of 2 % of a sample period
+DIRT = {"spike_prob": 1e-3, "burst_prob": 5e-4, "spike_sigma": 30.0}
+DIRT_JITTER = 0.02  # of a sample period
+DIRTY = [("stick-log/A dirty", "brake-2dof", ("stick-log:b=0.3,theta=0.05",), ("stick-time",), "A", "single"),
+         ("accel-body+/A dirty", "brake-2dof", ("accel-body:amp=0.12",), ("accel-sign",), "A", "single"),
+         ("null dirty", "brake-2dof", (), (), "A", "null")]
+BELT_DIRTY = [("belt stick-log dirty", ("stick-log:b=0.05,theta=0.05",), ("stick-time",), ("stick-time",), "single"),
+              ("belt null dirty", (), (), (), "null")]
+
+
 def belt_cases(rate: float) -> list[Case]:
     out = [Case(name, "belt-ndof", (eff,), (phen,), "steps", rate, remove=(phen,)) for name, eff, phen in BELT_SINGLES]
     out.append(Case("belt null", "belt-ndof", (), (), "steps", rate, kind="null"))
     out.append(Case("belt 2 masses stick-log", "belt-ndof", ("stick-log:b=0.05,theta=0.05",), ("stick-time",),
                     "steps", rate, remove=("stick-time",), masses=2))
+    out += [Case(name, "belt-ndof", effs, exp, "steps", rate, kind=kind, remove=rem, dirty=True)
+            for name, effs, exp, rem, kind in BELT_DIRTY]
     return out
 
 
@@ -123,6 +139,7 @@ def cases(rates: list[float], quick: bool = False, belt: bool = False) -> list[C
                         rate, kind="stiffness"))
         out.append(Case("drum bearing", "drum-pendulum", ("bearing:mu1=0.05",), ("bearing-friction",), "A", rate))
         out.append(Case("drum null", "drum-pendulum", (), (), "A", rate, kind="null"))
+        out += [Case(name, rig, effs, exp, ramp, rate, kind=kind, dirty=True) for name, rig, effs, exp, ramp, kind in DIRTY]
         if belt:
             out += belt_cases(rate)
     return out
@@ -196,13 +213,14 @@ def run_case(case: Case, work: Path) -> Outcome:
     o = Outcome(case)
     data = work / f"{case.rig}-{case.name.replace('/', '_').replace(' ', '_')}-{case.rate:g}.csv"
     rig = case.rig
+    dirt = {**DIRT, "jitter_s": DIRT_JITTER / case.rate} if case.dirty else {}
     if case.rig == "belt-ndof":
         rig = _belt_rig_file(case, work)
         rec = refsim.generate(case.rig, list(case.effects), rate=case.rate, seed=case.seed, steps=BELT_STEPS,
-                              duration=BELT_DURATION, cfg=refsim.fx.load_config(rig))
+                              duration=BELT_DURATION, cfg=refsim.fx.load_config(rig), **dirt)
     else:
         V0, Tmax, duration = RAMPS[case.ramp]
-        rec = refsim.generate(case.rig, list(case.effects), rate=case.rate, seed=case.seed,
+        rec = refsim.generate(case.rig, list(case.effects), rate=case.rate, seed=case.seed, **dirt,
                               **({"V0": V0, "Tmax": Tmax, "duration": duration} if case.rig == "brake-2dof"
                                  else {"duration": 20.0}))
     refsim.write(rec, data)

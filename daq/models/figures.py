@@ -14,6 +14,7 @@ from daq.io.png import save_png  # noqa: E402
 from daq.physics.contact import AUX  # noqa: E402
 from daq.signals import paper_spectrogram, sg  # noqa: E402
 
+from . import robust  # noqa: E402
 from .compare import OUTLIER_SIGMAS  # noqa: E402
 from .diagnose import MIN_STEP  # noqa: E402
 from .session import Fitted, Session  # noqa: E402
@@ -41,11 +42,14 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
         t = m.t[shot.index[j]]
         ax.plot(t, shot.meas[primary][j], "k.", ms=2, label="measured")
         ax.plot(t, shot.pred[primary][j], "C1-", lw=1.2, label="model from the data's state")
-        far = np.abs(shot.pred[primary][j] - shot.meas[primary][j]) > OUTLIER_SIGMAS * m.sigma[primary]
+        # the samples the loss counts linearly: beyond 3x the window's own scale (where the model misses the whole
+        # window, that scale is the misfit's and hardly a sample is: marking every sample > 5 noise levels off hid
+        # the data of a seed model behind crosses)
+        z = (shot.pred[primary][j] - shot.meas[primary][j]) / m.sigma[primary]
+        far = np.abs(z) > robust.HUBER_C * robust.scale(z)[0]
         fixed = np.isin(shot.index[j], m.outliers.get(primary, np.zeros(0, int)) // m.averaged)  # (file's samples)
         if far.any():
-            ax.plot(t[far], shot.meas[primary][j][far], "x", color="C3", ms=6,
-                    label=f"> {OUTLIER_SIGMAS:g} noise levels off the model")
+            ax.plot(t[far], shot.meas[primary][j][far], "x", color="C3", ms=6, label="outlier (counted linearly)")
         if fixed.any():
             ax.plot(t[fixed], shot.meas[primary][j][fixed], "o", mfc="none", color="C2", ms=6, label="spike repaired")
         ax.set_xlabel("t [s]")

@@ -43,6 +43,7 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
              Tmax: float | None = None, duration: float | None = None, lead_in: bool = False,
              steps: str | list[tuple[float, float]] | None = None, seed: int = 0,
              noise: bool = True, jitter_s: float = 0.0, spike_prob: float = 0.0, spike_sigma: float = 30.0,
+             burst_prob: float = 0.0,
              rtol: float = 1e-7, method: str = "RK45", cfg: dict | None = None) -> dict:
     """Simulate a reference rig and its instruments. Returns t, channels, truth, meta.
 
@@ -75,7 +76,7 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
     if not rate > 0:
         raise fx.SpecError(f"--rate {rate}: must be > 0")
     opt = sensors.SensorOptions(rate=rate, noise=noise, jitter_s=jitter_s, spike_prob=spike_prob,
-                                spike_sigma=spike_sigma)
+                                spike_sigma=spike_sigma, burst_prob=burst_prob)
     rng = np.random.default_rng(seed)
     t_nom, t_true = sensors.sample_instants(duration, opt, rng)
     model = RIGS[rig](cfg, eff, drive)
@@ -93,7 +94,8 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
         "rate_Hz": rate,
         "duration_s": duration,
         "drive": drive.describe(),
-        "sensors": {"noise": noise, "jitter_s": jitter_s, "spike_prob": spike_prob, "spike_sigma": spike_sigma},
+        "sensors": {"noise": noise, "jitter_s": jitter_s, "spike_prob": spike_prob, "spike_sigma": spike_sigma,
+                    "burst_prob": burst_prob},
         "integrator": {"scipy": "solve_ivp", "method": method, "rtol": rtol, "max_step_s": min(1e-3, 1.0 / rate),
                        "nfev": tr.nfev, "wall_s": round(tr.wall_s, 3)},
         "units": {n: cfg["channels"][n].get("unit", "") for n in channels},
@@ -150,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jitter", type=float, default=0.0, metavar="S", help="clock jitter std [s]")
     ap.add_argument("--spikes", type=float, default=0.0, metavar="P", help="probability of a spike per sample")
     ap.add_argument("--spike-sigma", type=float, default=30.0, help="spike size in noise_std")
+    ap.add_argument("--bursts", type=float, default=0.0, metavar="P", help="probability per sample of a burst of 2-3")
     ap.add_argument("--rtol", type=float, default=1e-7)
     ap.add_argument("--method", default="RK45", choices=["RK45", "DOP853", "LSODA", "Radau", "BDF"])
     ap.add_argument("--truth", action="store_true", help="also write truth_* columns")
@@ -160,13 +163,13 @@ def main(argv: list[str] | None = None) -> int:
             raise fx.SpecError(f"-o {a.out}: the output must be a .csv file")
         if not Path(a.out).resolve().parent.is_dir():
             raise fx.SpecError(f"-o {a.out}: no such directory")
-        for name, v in (("--jitter", a.jitter), ("--spikes", a.spikes)):
-            if not 0 <= v < (1 if name == "--spikes" else 0.5 / (a.rate or 1000.0)):
+        for name, v in (("--jitter", a.jitter), ("--spikes", a.spikes), ("--bursts", a.bursts)):
+            if not 0 <= v < (1 if name in ("--spikes", "--bursts") else 0.5 / (a.rate or 1000.0)):
                 raise fx.SpecError(f"{name} {v}: out of range")
         w0 = time.perf_counter()
         rec = generate(a.rig, a.effect, rate=a.rate, V0=a.V0, Tmax=a.Tmax, duration=a.duration, lead_in=a.lead_in,
                        steps=a.steps, cfg=fx.load_config(a.rig_file) if a.rig_file else None, seed=a.seed,
-                       noise=not a.no_noise, jitter_s=a.jitter, spike_prob=a.spikes,
+                       noise=not a.no_noise, jitter_s=a.jitter, spike_prob=a.spikes, burst_prob=a.bursts,
                        spike_sigma=a.spike_sigma, rtol=a.rtol, method=a.method)
         rec["meta"]["generate_wall_s"] = round(time.perf_counter() - w0, 3)
         csv_path, side = write(rec, a.out, truth=a.truth)

@@ -10,7 +10,8 @@ Channel figures (noise_std, lsb, update rate_Hz) are read from the rig config's
    10 Hz, drum speed 100 Hz) holds its last update; its noise is drawn per update;
 3. Gaussian noise of the channel's noise_std, then quantisation to its lsb;
 4. with ``spike_prob`` > 0, single-sample spikes (impulsive noise: a connector, an EMI
-   burst) of +-``spike_sigma`` x noise_std on the channels in ``spike_channels``.
+   burst) of +-``spike_sigma`` x noise_std on the channels in ``spike_channels``; with ``burst_prob`` > 0
+   also bursts of 2 or 3 samples, each of +-(0.5..1) ``spike_sigma`` x noise_std, signs at random.
 
 Counters (``drum_rev``) and commands (``vb_set``) carry no noise.
 """
@@ -29,6 +30,7 @@ class SensorOptions:
     jitter_s: float = 0.0
     spike_prob: float = 0.0
     spike_sigma: float = 30.0
+    burst_prob: float = 0.0  # per sample: a burst of 2-3 bad samples starts here
     spike_channels: tuple[str, ...] = ("x1", "phi", "force_a", "accel", "vel")
     noiseless: tuple[str, ...] = field(default=("vb_set", "drum_rev"))
 
@@ -67,6 +69,10 @@ def measure(name: str, ch: dict, t_nom: np.ndarray, truth: np.ndarray, opt: Sens
     if opt.spike_prob > 0 and name in opt.spike_channels and sd > 0:
         hit = rng.random(x.size) < opt.spike_prob
         x[hit] += rng.choice([-1.0, 1.0], size=int(hit.sum())) * opt.spike_sigma * sd
+    if opt.burst_prob > 0 and name in opt.spike_channels and sd > 0:
+        for i in np.flatnonzero(rng.random(x.size - 3) < opt.burst_prob):
+            k = int(rng.integers(2, 4))
+            x[i:i + k] += rng.choice([-1.0, 1.0], size=k) * rng.uniform(0.5, 1.0, k) * opt.spike_sigma * sd
     lsb = float(ch.get("lsb", 0.0))
     if lsb > 0:
         x = np.round(x / lsb) * lsb
