@@ -233,7 +233,8 @@ class DrumModel(RigModel):
 
 
 class BeltModel(RigModel):
-    """belt-ndof: eq. (1) per mass via the hybrid rhs in slip mode with the law zeroed; N = F0."""
+    """belt-ndof: eq. (1) per mass via the hybrid rhs in slip mode with the law zeroed; N = F0. With a driven
+    spring end (a spring-slider) the driver frame's acceleration V' is the estimated drive's derivative."""
 
     rig_id = "belt-ndof"
     position = "x1"
@@ -268,6 +269,8 @@ class BeltModel(RigModel):
         v = np.stack([f[c + "'"] for c in names])
         acc0 = np.empty_like(x)
         belt_free_accel(x, v, self.p_free, self.e_free, beltndof.n_state(self.n), acc0)
+        if self.p[beltndof.P.SPRING_DRIVEN]:  # a spring-slider: the driver's frame accelerates, + V' on every mass
+            acc0 += f["vb'"][None, :]  # (belt_free_accel runs at a constant drive: its frame term is 0)
         a = np.stack([f[c + "''"] for c in names])
         force = self.p[beltndof.P.M] * (acc0 - a)
         f0 = self.p[beltndof.P.F0]

@@ -374,7 +374,8 @@ class Problem:
         start values, so the update keeps the block structure), and re-computed by finite
         differences whenever a step fails or convergence is to be declared. Simulations
         are the whole cost: this cuts them per iteration from k + n_start + 1 to about 1.
-        The reported uncertainties always come from a finite-difference Jacobian. A robust loss enters as
+        The reported uncertainties come from a finite-difference Jacobian (a stage handed one by a previous stage
+        that converged: that one, carried by Broyden over the stage's few steps). A robust loss enters as
         iteratively reweighted least squares: the step is the weighted Gauss-Newton step with each sample's weight
         at the current iterate (robust.evaluate), a trial is accepted only if the loss itself falls, and the
         Jacobian is carried for the unweighted residuals (the weights change from one iterate to the next).
