@@ -18,7 +18,7 @@ from helpers import G, K, M, slider_compare, slider_rig
 
 from daq.config import load_rig, rig_path
 from daq.io.interchange import Recording, write_csv
-from daq.models.data import rig_data, stuck_by_hysteresis
+from daq.models.data import is_programme, rig_data, stuck_by_hysteresis
 from daq.models.session import Session
 from daq.models.spec import save_model, seed_model
 from daq.physics import beltndof
@@ -210,3 +210,15 @@ def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(t
     # ~20 um until 2026-11-25 (decision 21)
     assert res["error"] < 1.15 * res["noise_floor"], (res["error"], res["noise_floor"])
     assert res["residual_outliers"]["x1"] <= 2, res["residual_outliers"]  # 5 noise levels: none expected at the floor
+
+
+def test_a_drive_is_a_programme_only_when_its_updates_carry_no_noise():
+    """A map's constant, steps or ramp is the command as it is; a measured speed is smoothed, a held one too (a
+    100 Hz tachometer sampled at 1 kHz repeats each noisy reading ten times: its third differences are mostly 0)."""
+    t = np.arange(8000) / 1000.0
+    rng = np.random.default_rng(0)
+    held = np.repeat(0.012 + rng.normal(0.0, 1e-3, 800), 10)
+    assert not is_programme(held) and not is_programme(0.2 + rng.normal(0.0, 1e-3, t.size))
+    assert is_programme(np.full(t.size, 5e-5))
+    assert is_programme(4e-3 - 3e-3 * np.clip((t - 4.0) * 1000.0, 0.0, 1.0))  # a step of 1 ms
+    assert is_programme(0.17 * (1.0 - t / 45.0))  # a ramp

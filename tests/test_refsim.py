@@ -427,10 +427,12 @@ def test_drum_null_agrees_with_our_simulator(tmp_path):
         assert np.abs(mine[f"true_{name}"] - ours[f"truth_true_{name}"]).max() < tol, name
 
 
-@pytest.mark.parametrize("rig", ["brake-2dof", "drum-pendulum"])
-def test_null_recording_is_explained_by_our_seed_model(tmp_path, rig):
-    """Nothing hidden: daq's seed model, fitted, is as good as a perfect model (error within 15 % of its floor)."""
-    rec = make.generate(rig, [], rate=100.0, duration=15.0, seed=3)
+@pytest.mark.parametrize("rig, rate", [("brake-2dof", 100.0), ("drum-pendulum", 100.0), ("drum-pendulum", 1000.0)])
+def test_null_recording_is_explained_by_our_seed_model(tmp_path, rig, rate):
+    """Nothing hidden: daq's seed model, fitted, is as good as a perfect model (error within 15 % of its floor).
+    At 1 kHz the drum's 100 Hz tachometer holds each reading for ten samples: it was taken for a noise-free
+    programme and the model driven by a staircase (17 % over the floor, belt-speed claimed in the recovery table)."""
+    rec = make.generate(rig, [], rate=rate, duration=15.0, seed=3)
     make.write(rec, tmp_path / "null.csv")
     daq("model", "init", rig, "-o", "seed.toml", cwd=tmp_path)
     r = daq("compare", "null.csv", "--rig", rig, "--model", "seed.toml", "--json", cwd=tmp_path)
