@@ -46,7 +46,7 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
         # window, that scale is the misfit's and hardly a sample is: marking every sample > 5 noise levels off hid
         # the data of a seed model behind crosses)
         z = (shot.pred[primary][j] - shot.meas[primary][j]) / m.sigma[primary]
-        far = np.abs(z) > robust.HUBER_C * robust.scale(z)[0]
+        far = robust.counted_linearly(z[None, None, :], fitted.problem.loss)[0, 0]
         fixed = np.isin(shot.index[j], m.outliers.get(primary, np.zeros(0, int)) // m.averaged)  # (file's samples)
         if far.any():
             ax.plot(t[far], shot.meas[primary][j][far], "x", color="C3", ms=6, label="outlier (counted linearly)")

@@ -83,7 +83,11 @@ def contaminated(z: np.ndarray, loss: str = HUBER) -> bool:
     return float(np.sum(downweighted(z, loss))) > expected + 2.33 * np.sqrt(expected) + 1.0
 
 
+def counted_linearly(z: np.ndarray, loss: str = HUBER) -> np.ndarray:
+    """Which samples the loss counts at less than their square (beyond the threshold): a mask shaped as z."""
+    return evaluate(z, loss)[1] < 1.0
+
+
 def downweighted(z: np.ndarray, loss: str = HUBER) -> np.ndarray:
     """Per output, how many samples the loss counts at less than their square (beyond the threshold)."""
-    _, w = evaluate(z, loss)
-    return np.sum(w < 1.0, axis=(0, 2))
+    return np.sum(counted_linearly(z, loss), axis=(0, 2))

@@ -198,17 +198,16 @@ class Session:
             nested = (dict(values), warm.fit.start_values)
             starts.append(nested)
             moved_new = {k: v for k, v in moved.items() if k in new}
-            if moved_new:
-                starts.append(({**values, **moved_new}, warm.fit.start_values))
-            if cold:
-                starts.append(({**values, **{k: v for k, v in cold.items() if k in values and k not in new},
-                                **moved_new}, None))
+            cold_values = ({**values, **{k: v for k, v in cold.items() if k in values and k not in new}}
+                           if cold else None)
+            ladder = [moved_new]
             if restart and moved_new:  # a model's own fit: the new strengths a decade further too (see LADDER)
-                far = {k: float(np.clip(LADDER * v, *bounds[k])) for k, v in moved_new.items()}
-                starts.append(({**values, **far}, warm.fit.start_values))
-                if cold:
-                    starts.append(({**values, **{k: v for k, v in cold.items() if k in values and k not in new},
-                                    **far}, None))
+                ladder.append({k: float(np.clip(LADDER * v, *bounds[k])) for k, v in moved_new.items()})
+            for strengths in ladder:
+                if strengths:
+                    starts.append(({**values, **strengths}, warm.fit.start_values))
+                if cold_values is not None:
+                    starts.append(({**cold_values, **strengths}, None))
         # the same values twice (a model file that holds the fitted values of the model it extends): keep the
         # start with the warm start values, the later one
         unique: dict[tuple, tuple] = {}

@@ -416,13 +416,15 @@ class Problem:
                 jg[..., i] = (resid(tp, vel) - r) / hstep
             return jg, start_jacobian(lambda vp: resid(th, vp), vel, r, vscale)
 
+        keeps_weights = length is None or length == self.win.length  # (a shorter fit's weights are not the windows')
         handed = (after is not None and after.jac is not None and after.z is not None
                   and after.jac[0].shape == after.z.shape + (k,) and after.jac[1].shape == after.z.shape + (nv,))
         R = after.z if handed else resid(theta, V)
         cost, W = loss(R)
         if handed and not robust.contaminated(R.reshape(nw, len(self.outputs), -1), loss_name):
             vals = {**values, **{n: float(theta[i]) for i, n in enumerate(free)}}
-            self._keep_weights(windows, (W / ww[:, None]).reshape(nw, len(self.outputs), -1))
+            if keeps_weights:
+                self._keep_weights(windows, (W / ww[:, None]).reshape(nw, len(self.outputs), -1))
             return ShootingFit(vals, list(free), dict(after.std), V.copy(), windows, cost, 0, True,
                                "no more samples beyond the threshold than noise puts there: least squares' end",
                                jac=after.jac, z=R)
@@ -495,7 +497,7 @@ class Problem:
         vals.update({n: float(theta[i]) for i, n in enumerate(free)})
         sw = np.sqrt(W)[..., None]
         std = self._stds(Jg * sw if k else None, Jv * sw, 0.5 * float(np.sum(W * R * R)), R.size, k, nv, nw, free)
-        if length is None or length == self.win.length:
+        if keeps_weights:
             self._keep_weights(windows, (W / ww[:, None]).reshape(nw, len(self.outputs), -1))
         return ShootingFit(vals, list(free), std, V.copy(), windows, cost, nfev, success, message, jac=(Jg, Jv), z=R)
 
@@ -558,7 +560,8 @@ class Problem:
             return start_jacobian(lambda vp: resid(vp, rows), vel, r, vscale)
 
         allr = np.arange(nw)
-        handed = after is not None and after.z is not None and after.z.shape[0] == nw and after.jac is not None
+        handed = (nw > 0 and after is not None and after.z is not None and after.z.shape[0] == nw
+                  and after.jac is not None)
         R = after.z.copy() if handed else (resid(V, allr) if nw else np.zeros((0, 0)))
         if handed and not robust.contaminated(R.reshape(nw, len(self.outputs), -1), loss_name):
             cost, W = loss(R, allr)
