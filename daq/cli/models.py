@@ -230,6 +230,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         for step in res["sequence"]:
             print(f"  added: {step['label']} (removes {step['step_reduction']:.0%} of the excess left, "
                   f"z {step['consistency_z']:.1f})")
+        for v in res["margins"]:
+            print(f"  margin: {v['label']} " + ("named" if v["decided"] else "undecided") + "; " + ", ".join(
+                f"over {m['rival']} {m['margin']:+.2f} of the excess (5 % bound {m['margin_lower']:+.2f})"
+                for m in v["rivals"]))
+        if res["missing_effect_found"]:
+            print(f"  promised: {res['final_reduction']:.0%} of the excess, as `model add` + `compare` fit it "
+                  f"(the diagnosis's own fit: {res['search_reduction']:.0%})")
         if not d.found and d.correlations:
             print("  residual correlates with: " + ", ".join(
                 f"{c['quantity']} ({c['spearman_rho']:+.2f})" for c in d.correlations[:5]))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
+import time
 from dataclasses import dataclass, field
 from itertools import combinations
 
@@ -32,8 +33,9 @@ from scipy import stats
 from daq.physics.effects import CATALOG
 
 from .candidates import Candidate, candidates_for
+from .margins import Margin, margin
 from .screening import column, linearise, predicted_gain
-from .session import Fitted, Session
+from .session import Fitted, Session, portable
 from .shooting import ShootingFit
 from .spec import Model
 
@@ -193,40 +195,37 @@ def _fit_task(task) -> tuple:
         return task, s.noise_floor(current)
     root: Model = _STATE["root"]  # type: ignore[assignment]
     f = s.fit(_extend(root, task), warm=current, cold=_STATE.get("cold"))  # type: ignore[arg-type]
-    return task, f.values, f.fit.start_values, f.held.start_values, f.fit.std, f.ms_held, f.ms_fit, f.fit.cost, \
-        f.fit.message, f.problem.weights, f.problem.sample_weights
+    return task, portable(f)
 
 
 def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidate, ...]], workers: int | None = None,
                    on_done=None, floors: dict | None = None,
                    cold: dict[str, float] | None = None,
-                   root: Model | None = None) -> dict[tuple[Candidate, ...], Fitted]:
+                   root: Model | None = None,
+                   cost: dict[Candidate, float] | None = None) -> dict[tuple[Candidate, ...], Fitted]:
     """Refit the current model once per extension (a candidate, or a pair), each from the current fit with
     the new parameters at neutral, in parallel processes if we can. Given a dict ``floors``, the current
     fit's noise floor is computed too (filled in): in the pool it fills the gap an odd number of fits leaves.
     Given a ``root``, the extensions are of the root model (a model with less than the current one, which
-    then gives only the start values: the backward check of prune)."""
+    then gives only the start values: the backward check of prune). ``cost``: a guess at each candidate's cost per
+    simulation; the costliest tasks go to the pool first (the order of the results does not depend on it: on the brake
+    bench accel-sign (body) took 7.2 s of 20.6 s of fits and, started last, held one core alone for 4 s)."""
     root = root or current.model
     workers = workers or min(len(tasks) + (floors is not None), os.cpu_count() or 1)
     out: dict[tuple[Candidate, ...], Fitted] = {}
     if workers > 1 and "fork" in mp.get_all_start_methods():
         _STATE.update(session=session, current=current, cold=cold, root=root)
-        todo = ([FLOOR] if floors is not None else []) + list(tasks)
+        todo = list(tasks)
+        if cost:
+            todo.sort(key=lambda t: -sum(cost.get(c, 0.0) for c in t))  # stable: equal guesses keep their order
+        todo = ([FLOOR] if floors is not None else []) + todo
         try:
             with mp.get_context("fork").Pool(workers) as pool:
-                for task, *rest in pool.imap_unordered(_fit_task, todo):
+                for task, parts in pool.imap_unordered(_fit_task, todo):
                     if task == FLOOR:
-                        floors.update(rest[0])  # type: ignore[union-attr]
+                        floors.update(parts)  # type: ignore[union-attr]
                         continue
-                    values, vel, vel_held, std, ms_held, ms_fit, cost, message, weights, sample_weights = rest
-                    model = _extend(root, task)
-                    free = model.free_names()
-                    fr = ShootingFit(values, free, std, vel, session.win.select(False), cost, 0, True, message)
-                    hr = ShootingFit(values, [], {}, vel_held, session.win.select(True), float("nan"), 0, True)
-                    pr = session.problem(model)
-                    pr.weights, pr.sample_weights = weights, sample_weights
-                    out[task] = Fitted(model.with_values({k: values[k] for k in free}, std), values, fr, hr, pr,
-                                       ms_held, ms_fit)
+                    out[task] = session.restore(parts)
                     if on_done:
                         on_done(task)
         finally:
@@ -239,6 +238,15 @@ def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidat
         if on_done:
             on_done(task)
     return out
+
+
+def keep_fits(seen: dict, prefix: tuple[Candidate, ...], fits: dict[tuple[Candidate, ...], Fitted]) -> None:
+    """Remember each fit by the set of candidates the base model was extended by (the current model's ``prefix``
+    and the task's); of two fits of one model the lower fit cost is kept (all share the base fit's window weights)."""
+    for task, f in fits.items():
+        key = frozenset(prefix + task)
+        if key not in seen or f.fit.cost < seen[key].fit.cost:
+            seen[key] = f
 
 
 # --------------------------------------------------------------------------- screening
@@ -312,14 +320,26 @@ class Diagnosis:
     correlations: list[dict]
     sequence: list[Scored] = field(default_factory=list)  # what was added, step by step
     screened: list[Screened] = field(default_factory=list)  # first step's candidates not fitted
-    final: Fitted | None = None  # the model with the whole sequence
+    final: Fitted | None = None  # the model with the whole sequence, as the diagnosis fitted it
+    verdicts: list[Verdict] = field(default_factory=list)  # each member's margins (judge)
+    delivered: Fitted | None = None  # the same model as `model add` + `compare` fit it: what is promised
+    search_total: float = 0.0  # the share of the excess the diagnosis's own fit removed
+
+    @property
+    def promised(self) -> Fitted:
+        return self.delivered or self.final or self.base
+
+    def reduction(self, fitted: Fitted, primary: str) -> float:
+        e0, e1 = self.base.rms(primary), fitted.rms(primary)
+        return (e0 - e1) / (e0 - self.floor) if e0 > self.floor else 0.0
 
     def as_json(self, session: Session) -> dict:
         primary = session.primary
         unit = session.m.units[primary]
         best = self.sequence[0] if self.sequence else None
-        final = self.final or self.base
+        final = self.promised
         e0 = self.base.rms(primary)
+        verdict = {v.cand: v for v in self.verdicts}
         flagged = session.win.transient if session.win.transient is not None else np.zeros(session.win.starts.size, bool)
         return {
             "data": session.source,
@@ -338,11 +358,21 @@ class Diagnosis:
             "best_form": best.cands[0].form if (best and self.found) else None,
             "summary": self.summary,
             "sequence": [{"effect": c.phenomenon, "form": c.form, "label": c.label, "step_reduction": s.step_reduction,
-                          "reduction": s.reduction, "consistency_z": s.t_stat, "error": s.error, "values": s.values}
+                          "reduction": s.reduction, "consistency_z": s.t_stat, "error": s.error, "values": s.values,
+                          **({"decided": verdict[c].decided, "margin": verdict[c].weakest.share,
+                              "margin_lower": verdict[c].weakest.lower, "nearest_rival": verdict[c].weakest.rival,
+                              "undecided_with": [m.rival for m in verdict[c].ties]} if c in verdict else {})}
                          for s in self.sequence for c in s.cands],
+            "named": [v.cand.label for v in self.verdicts if v.decided] if self.found else [],
+            "undecided": [{"between": [v.cand.label] + [m.rival for m in v.ties],
+                           "margins": [m.as_json() for m in v.ties]} for v in self.verdicts if v.ties] if self.found else [],
+            "margins": [v.as_json() for v in self.verdicts],
             "final_model": final.model.describe(),
             "final_error": final.rms(primary),
-            "final_reduction": (e0 - final.rms(primary)) / (e0 - self.floor) if e0 > self.floor else 0.0,
+            "final_reduction": self.reduction(final, primary),  # what `model add` + `compare` deliver (delivered_fit)
+            "search_error": (self.final or self.base).rms(primary),  # the diagnosis's own fit of the same model
+            "search_reduction": self.search_total,
+            "unexplained": unexplained(session, self) if self.found else None,
             "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
                             "step_reduction": c.step_reduction, "score": c.score, "error": c.error,
                             "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
@@ -368,21 +398,30 @@ def add_command(c: Candidate) -> str:
 
 
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
-          first: bool, cold: dict[str, float]) -> tuple[list[Scored], list[Screened], Scored | None]:
-    """One forward-selection step: screen, fit the most promising, pairs if no single passes."""
+          first: bool, cold: dict[str, float], seen: dict | None = None,
+          prefix: tuple[Candidate, ...] = ()) -> tuple[list[Scored], list[Screened], Scored | None]:
+    """One forward-selection step: screen, fit the most promising, pairs if no single passes. Every fit is kept in
+    ``seen`` (by the set of candidates the base model was extended by; ``prefix``: the current model's)."""
+    seen = {} if seen is None else seen
     cands = candidates_for(current.model)
     if not cands:
         return [], [], None
     lin = linearise(current)
-    cols = {c: column(session, current, c, lin) for c in cands}
+    cols, cost = {}, {}
+    for c in cands:  # (each column is one simulation with the candidate in: its time is the guess at a fit's cost)
+        t0 = time.perf_counter()
+        cols[c] = column(session, current, c, lin)
+        cost[c] = time.perf_counter() - t0
     gains = {c: predicted_gain(lin, [cols[c]]) for c in cands}
     worth = MIN_GAIN
     if not first:  # the excess left, in cost units: a step must be predicted to reach a fair share of it
         e, f = current.rms(session.primary), floor_holder[session.primary]
         worth = max(MIN_GAIN, 0.5 * MIN_STEP * lin.cost * max(1.0 - (f / e) ** 2, 0.0))
     chosen = to_fit(gains, first, worth)
-    if first:  # a structural switch is no derivative: its screening only ranks it loosely, so it is fitted
-        chosen += [c for c in cands if cols[c].switch and c not in chosen]
+    # a structural switch is no derivative: its screening only ranks it loosely, so it is fitted in every step (in
+    # the first step only, a pair case's second effect, the belt's ripple, went unfitted in step 2 once a fourth
+    # phenomenon had pushed it out of the pairs of step 1: the conclusion hung on how many phenomena were fitted)
+    chosen += [c for c in cands if cols[c].switch and c not in chosen]
     top = sorted(gains.items(), key=lambda cg: -cg[1])[:6]
     say(f"screened {len(cands)} candidates (score test, predicted cost decrease: "
         + ", ".join(f"{c.label} {g:.3g}" for c, g in top) + f"); fitting {', '.join(c.label for c in chosen) or 'none'}")
@@ -390,7 +429,8 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
         return [], sorted((Screened(c, g) for c, g in gains.items()), key=lambda s: -s.predicted_gain), None
     floors = floor_holder if not floor_holder else None
     fits = fit_extensions(session, current, [(c,) for c in chosen], workers, floors=floors,
-                          on_done=lambda t: say(f"  refitted with {t[0].label}"), cold=cold)
+                          on_done=lambda t: say(f"  refitted with {t[0].label}"), cold=cold, cost=cost)
+    keep_fits(seen, prefix, fits)
     floor = floor_holder[session.primary]
     scored = sorted((score(base, current, fits[(c,)], (c,), floor, session, gains[c]) for c in chosen),
                     key=lambda s: -s.score)
@@ -422,8 +462,9 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     say(("no single candidate passes" if not ok else f"the best, {ok[0].label}, leaves "
          f"{1 - ok[0].step_reduction:.0%} of the excess") + "; fitting pairs: "
         + ", ".join(a.label + " + " + b.label for a, b in pairs))
-    pfits = fit_extensions(session, current, pairs, workers, cold=cold,
+    pfits = fit_extensions(session, current, pairs, workers, cold=cold, cost=cost,
                            on_done=lambda t: say(f"  refitted with {t[0].label} + {t[1].label}"))
+    keep_fits(seen, prefix, pfits)
     pscored = sorted((score(base, current, pfits[p], p, floor, session) for p in pairs), key=lambda s: -s.score)
     say("pairs: " + ", ".join(f"{s.label} {s.step_reduction:.0%} (z {s.t_stat:.1f})" for s in pscored))
     pok = [s for s in pscored if passes(s) and (not ok or s.score >= ok[0].score + PAIR_MARGIN)
@@ -432,7 +473,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
 
 
 def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate], floor: float, say,
-          workers) -> tuple[list[Candidate], Fitted]:
+          workers, seen: dict | None = None) -> tuple[list[Candidate], Fitted]:
     """The backward check of forward selection: each effect of the final model must still pass as the last
     one added to all the others. The model without it is refitted from the final fit's values (the others'
     fitted values, not their neutral starts: so it keeps any better basin the whole sequence found); the
@@ -446,6 +487,8 @@ def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate
     while len(members) >= 2:
         tasks = [tuple(m for m in members if m is not x) for x in members]
         fits = fit_extensions(session, final, tasks, workers, root=base.model)
+        if seen is not None:
+            keep_fits(seen, (), fits)
         checks = [(x, score(base, fits[t], final, (x,), floor, session)) for x, t in zip(members, tasks)]
         say("backward check: " + ", ".join(f"{x.label} {s.step_reduction:.0%} (z {s.t_stat:.1f}) "
                                             f"{'holds' if passes(s) else 'fails'}" for x, s in checks))
@@ -459,8 +502,128 @@ def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate
     return members, final
 
 
+# --------------------------------------------------------------------------- margins: how firmly, and against what
+
+NOTHING = "nothing more"  # the rival every named effect has: the model without it
+RIVALS = 2  # per named effect: the best other phenomena of the step it entered in, each refitted in its place...
+RIVAL_SHARE = 0.5  # ...that explained at least this share of what the named one did alone in that step
+
+
+@dataclass
+class Verdict:
+    """A member of the final model and how firmly the held-out windows prefer it: over the model without it
+    (margins[0]) and over each plausible rival refitted in its place; over its phenomenon's other forms."""
+
+    cand: Candidate
+    margins: list[Margin]
+    forms: list[Margin] = field(default_factory=list)
+
+    @property
+    def needed(self) -> bool:
+        return self.margins[0].decided
+
+    @property
+    def decided(self) -> bool:
+        return all(m.decided for m in self.margins)
+
+    @property
+    def ties(self) -> list[Margin]:
+        """The rivals the data cannot tell from it."""
+        return [m for m in self.margins[1:] if not m.decided]
+
+    @property
+    def weakest(self) -> Margin:
+        return min(self.margins, key=lambda m: (m.lower, m.rival))
+
+    def as_json(self) -> dict:
+        w = self.weakest
+        return {"effect": self.cand.phenomenon, "form": self.cand.form, "label": self.cand.label,
+                "decided": self.decided, "margin": w.share, "margin_lower": w.lower, "nearest_rival": w.rival,
+                "rivals": [m.as_json() for m in self.margins],
+                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms]}
+
+
+def rivals_for(x: Candidate, singles: list[Scored], members: list[Candidate]) -> list[Candidate]:
+    """Plausible substitutes for ``x``: the best form of each other phenomenon among the singles of the step x
+    entered in (not already a member), consistent (z >= MIN_T) and explaining at least RIVAL_SHARE of what x did
+    alone there; at most RIVALS, best first."""
+    taken = {m.phenomenon for m in members}
+    own = next((s.reduction for s in singles if s.cands == (x,)), 0.0)
+    out: dict[str, Candidate] = {}
+    for s in sorted(singles, key=lambda s: (-s.score, s.label)):
+        c = s.cands[0]
+        if c.phenomenon in taken or c.phenomenon in out:
+            continue
+        if s.t_stat >= MIN_T and s.reduction > 0 and s.reduction >= RIVAL_SHARE * own:
+            out[c.phenomenon] = c
+    return list(out.values())[:RIVALS]
+
+
+def judge(session: Session, base: Fitted, final: Fitted, members: list[Candidate], entered: dict[Candidate, list],
+          seen: dict, floor: float, say, workers) -> tuple[list[Candidate], Fitted, list[Verdict]]:
+    """Margins for every member of the final model: the paired bootstrap over held-out windows (margins.py) of the
+    final model against the model without it and against each plausible rival refitted in its place (fits already
+    made are reused from ``seen``). A member the data do not prefer over nothing at that margin is dropped (the
+    weakest first, then all are judged again); a rival it does not beat stays standing beside it: a tie.
+    Why substitution and not the step's own ranking: a step's singles each extend the model of that step, and an
+    effect taken first can stand in for a later one (a mass for a friction keyed to acceleration) until the later
+    one is in; only the final model with the rival in the member's place says which the data prefer."""
+    p = session.primary
+    cap = CAP_MS * float(np.median(base.ms_held[p])) if base.ms_held else float("inf")
+    excess = base.rms(p) - floor
+    members = list(members)
+    while members:
+        plan: dict[Candidate, list[tuple[str, tuple[Candidate, ...]]]] = {}
+        for x in members:
+            rest = tuple(m for m in members if m != x)
+            plan[x] = [(NOTHING, rest)] + [(y.label, rest + (y,)) for y in rivals_for(x, entered.get(x, []), members)]
+        todo: list[tuple[Candidate, ...]] = []
+        for x in members:
+            for _, t in plan[x]:
+                if t and frozenset(t) not in seen and frozenset(t) not in map(frozenset, todo):
+                    todo.append(t)
+        if todo:
+            say("margins: refitting " + ", ".join(" + ".join(c.label for c in t) for t in todo))
+            keep_fits(seen, (), fit_extensions(session, final, todo, workers, root=base.model))
+        verdicts = []
+        for x in members:
+            ms = [margin(x.label, name, final.ms_held[p], (seen[frozenset(t)] if t else base).ms_held[p], excess, cap)
+                  for name, t in plan[x]]
+            own = next((s for s in entered.get(x, []) if s.cands == (x,)), None)
+            forms = [margin(x.label, s.label, own.fitted.ms_held[p], s.fitted.ms_held[p], excess, cap)
+                     for s in entered.get(x, []) if own is not None and own.fitted is not None and s.fitted is not None
+                     and s.cands[0].phenomenon == x.phenomenon and s.cands != (x,)]
+            verdicts.append(Verdict(x, ms, forms))
+        say("margins: " + "; ".join(f"{v.cand.label} over {m.rival} {m.share:+.2f} (5 % bound {m.lower:+.2f})"
+                                    for v in verdicts for m in v.margins))
+        weak = [v for v in verdicts if not v.needed]
+        if not weak:
+            return members, final, verdicts
+        v = min(weak, key=lambda v: (v.margins[0].lower, v.cand.label))
+        members.remove(v.cand)
+        final = seen[frozenset(members)] if members else base
+        say(f"  dropped {v.cand.label}: the model without it does as well within the margin "
+            f"({v.margins[0].share:+.2f}, 5 % bound {v.margins[0].lower:+.2f})")
+    return [], base, []
+
+
+def delivered_fit(session: Session, model: Model, members: list[Candidate]) -> Fitted:
+    """What the user gets: the model file with each member added as `daq model add` adds it, fitted as `daq compare`
+    fits it (the same session, so the same windows and noise). Why not the diagnosis's own fit: it starts from the
+    fitted base model with the candidates' paths, a compare starts from the file's values; the two can end in
+    different basins, and a promise is only worth what the user's own commands reproduce."""
+    for c in members:
+        model = c.apply(model, f"model add {add_command(c)}")
+    return session.fit(model)
+
+
+# --------------------------------------------------------------------------- the whole diagnosis
+
+
 def diagnose(session: Session, model: Model, progress=None, workers: int | None = None,
-             base: Fitted | None = None, max_steps: int = MAX_STEPS) -> Diagnosis:
+             base: Fitted | None = None, max_steps: int = MAX_STEPS, deliver: bool = True) -> Diagnosis:
+    """Forward selection, the backward check, margins (judge), and with ``deliver`` what `model add` + `compare` will
+    deliver (delivered_fit: the promise; without it the diagnosis's own fit stands in, as for a conclusion alone)."""
     say = progress or (lambda msg: None)
     if base is None:
         say(f"fitting the model ({len(model.free_names())} free parameters) on {len(session.win.select(False))} windows")
@@ -473,9 +636,13 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     current, sequence = base, []
     first_scored: list[Scored] = []
     first_screened: list[Screened] = []
+    seen: dict = {}
+    entered: dict[Candidate, list[Scored]] = {}  # each member: the singles of the step it entered in (its rivals)
     for k in range(max_steps):
+        prefix = tuple(c for s in sequence for c in s.cands)
         scored, screened, accepted = _step(session, base, current, floors, say, workers, first=(k == 0),
-                                           cold={n: p.value for n, p in model.params().items()})
+                                           cold={n: p.value for n, p in model.params().items()}, seen=seen,
+                                           prefix=prefix)
         if k == 0:
             first_scored, first_screened = scored, screened
             say(f"noise floor {floors[primary]:.4g} {unit}")
@@ -484,6 +651,7 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
         if accepted is None:
             break
         sequence.append(accepted)
+        entered.update({c: scored for c in accepted.cands})
         current = accepted.fitted
         say(f"step {k + 1}: + {accepted.label} removes {accepted.step_reduction:.0%} of the excess left "
             f"(z {accepted.t_stat:.1f}); error {accepted.error:.4g} {unit}")
@@ -492,19 +660,26 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     floor = floors[primary]
     members = [c for s in sequence for c in s.cands]
     if len(members) >= 2:
-        kept, pruned = prune(session, base, current, members, floor, say, workers)
-        if len(kept) < len(members):  # what is left, scored as one step from the base model
-            current = pruned
-            sequence = [score(base, base, pruned, tuple(kept), floor, session)]
+        members, current = prune(session, base, current, members, floor, say, workers, seen)
+    verdicts: list[Verdict] = []
+    if members:
+        members, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers)
+    if [c for s in sequence for c in s.cands] != members:  # what is left, scored as one step from the base model
+        sequence = [score(base, base, current, tuple(members), floor, session)] if members else []
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
     total = (e0 - current.rms(primary)) / (e0 - floor) if e0 > floor else 0.0
     z_total = consistency(session.weighted(base.ms_held) - session.weighted(current.ms_held)) if sequence else 0.0
     # every step passed on its own held-out evidence; the combined model must hold up as a whole too
     found = bool(sequence and excess_ratio > MIN_EXCESS and total >= MIN_STEP and z_total >= MIN_T)
+    delivered = None
+    if found and deliver:
+        say("what the user gets: the model file + " + ", ".join(c.label for c in members) + ", fitted as compare does")
+        delivered = delivered_fit(session, model, members)
     corr = correlations(session, base)
-    summary = _summary(session, base, current, sequence, first_scored, floor, found, excess_ratio, total, corr)
-    return Diagnosis(base, floor, floors, first_scored, found, summary, corr, sequence, first_screened,
-                     current if sequence else None)
+    d = Diagnosis(base, floor, floors, first_scored, found, "", corr, sequence, first_screened,
+                  current if sequence else None, verdicts, delivered, total)
+    d.summary = _summary(session, d, excess_ratio)
+    return d
 
 
 def _meaning(c: Candidate) -> str:
@@ -513,24 +688,72 @@ def _meaning(c: Candidate) -> str:
     return CATALOG[c.name].form_meaning(c.form)
 
 
-def _summary(session: Session, base: Fitted, final: Fitted, sequence: list[Scored], scored: list[Scored],
-             floor: float, found: bool, excess_ratio: float, total: float, corr: list[dict]) -> str:
+WHOLE = 0.7  # an explanation that removes less of the excess than this is reported as partial, with where the rest is
+
+
+def unexplained(session: Session, d: Diagnosis) -> dict | None:
+    """Where the excess the named effects leave lives, when they leave more than 1 - WHOLE of it: per signal (error
+    against its floor), the held-out windows that carry most of it (time, error), and what the windows' errors
+    follow (residual_correlations of the promised fit)."""
+    p = session.primary
+    f = d.promised
+    share = d.reduction(f, p)
+    if share >= WHOLE or not f.ms_held:
+        return None
+    ms = f.ms_held[p]
+    t = session.m.t[session.win.starts[f.held.windows]]
+    worst = np.argsort(-ms, kind="stable")[:3]
+    return {"share_left": 1.0 - share,
+            "by_signal": {k: {"error": float(math.sqrt(np.mean(v))), "noise_floor": d.floors.get(k)}
+                          for k, v in f.ms_held.items()},
+            "worst_windows": [{"t_s": float(t[i]), "error": float(math.sqrt(ms[i])),
+                               "share_of_squared_error": float(ms[i] / ms.sum())} for i in worst],
+            "follows": correlations(session, f)[:3]}
+
+
+def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
     unit = session.m.units[session.primary]
-    e0, e1 = base.rms(session.primary), final.rms(session.primary)
-    if found:
-        added = [c for s in sequence for c in s.cands]
-        names = "; ".join(f"'{c.label}' ({_meaning(c)})" for c in added)
-        vals = ", ".join(f"{k.split('.', 1)[-1]} = {v:.4g}" for s in sequence for k, v in s.values.items())
+    e0, floor = d.base.rms(session.primary), d.floor
+    if d.found:
+        f = d.promised
+        share = d.reduction(f, session.primary)
+        added = [v.cand for v in d.verdicts] or [c for s in d.sequence for c in s.cands]
+        decided = [v for v in d.verdicts if v.decided]
+        tied = [v for v in d.verdicts if not v.decided]
+        parts = []
+        if decided:
+            parts.append("The model misses " + "; ".join(
+                f"'{v.cand.label}' ({_meaning(v.cand)}; margin {v.weakest.share:+.2f} of the excess over "
+                f"{_rival(v.weakest.rival)}, 5 % bound {v.weakest.lower:+.2f})" for v in decided) + ".")
+        for v in tied:
+            rivals = [v.cand.label] + [m.rival for m in v.ties]
+            parts.append(f"Undecided between {' and '.join(repr(r) for r in rivals)}: '{v.cand.label}' scores "
+                         + ", ".join(f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f})"
+                                     for m in v.ties)
+                         + f"; adding '{v.cand.label}' is the better guess, a run that separates them the way to know.")
+        base_free = set(d.base.model.free_names())
+        vals = ", ".join(f"{k.split('.', 1)[-1]} = {f.values[k]:.4g}" for k in f.model.free_names() if k not in base_free)
         cmds = "; ".join(f"daq model add MODEL {add_command(c)}" for c in added)
-        return (f"The model misses {names}. Together they remove {total:.0%} of the excess error on held-out windows "
-                f"({e0:.3g} -> {e1:.3g} {unit}, noise floor {floor:.3g}); fitted {vals or 'no parameters'}. "
-                f"To add: {cmds}.")
+        whole = (f"Together they remove {share:.0%} of the excess error on held-out windows" if len(added) > 1
+                 else f"It removes {share:.0%} of the excess error on held-out windows")
+        parts.append(f"{whole} as `model add` + `compare` fit it ({e0:.3g} -> {f.rms(session.primary):.3g} {unit}, "
+                     f"noise floor {floor:.3g}); fitted {vals or 'no parameters'}. To add: {cmds}.")
+        rest = unexplained(session, d)
+        if rest is not None:
+            follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in rest["follows"]
+                                if abs(c["spearman_rho"]) > 0.3) or "nothing measured"
+            worst = ", ".join(f"t = {w['t_s']:.1f} s ({w['share_of_squared_error']:.0%})" for w in rest["worst_windows"])
+            parts.append(f"That is only part: a form the catalog lacks, or another effect, holds the other "
+                         f"{rest['share_left']:.0%}; it lives most in the held-out windows at {worst}, and follows "
+                         f"{follows}.")
+        return " ".join(parts)
     if excess_ratio <= MIN_EXCESS:
         return (f"No missing effect: the model's error ({e0:.3g} {unit}) is within {MIN_EXCESS:.0%} of the noise "
                 f"floor ({floor:.3g} {unit}).")
+    corr = d.correlations
     strong = [c for c in corr if abs(c["spearman_rho"]) > 0.3 and c["p_value"] < 0.01]
     follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in strong[:4]) or "nothing measured"
-    best = scored[0] if scored else None
+    best = d.candidates[0] if d.candidates else None
     above = f"{excess_ratio:.0%} above" if excess_ratio < 1.0 else f"{1.0 + excess_ratio:.1f}x"
     why = ""
     if best is not None and best.fit_only:
@@ -546,6 +769,10 @@ def _summary(session: Session, base: Fitted, final: Fitted, sequence: list[Score
     return (f"The model's error ({e0:.3g} {unit}) is {above} the noise floor, but no catalog "
             f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}{why}). "
             f"The residual follows: {follows}.{few}")
+
+
+def _rival(name: str) -> str:
+    return "the model without it" if name == NOTHING else f"'{name}'"
 
 
 def z_attainable(n: int) -> float:

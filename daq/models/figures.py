@@ -156,8 +156,8 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     m = session.m
     primary = session.primary
     unit = m.units[primary]
-    fig = plt.figure(figsize=(15, 5), constrained_layout=True)
-    gs = fig.add_gridspec(1, 3)
+    fig = plt.figure(figsize=(19, 5), constrained_layout=True)
+    gs = fig.add_gridspec(1, 4)
     ax = fig.add_subplot(gs[0, 0])
     added = {c.label for step in diag.sequence for c in step.cands} if diag.found else set()
     # a candidate whose gain the model without it reaches too (at the candidate fit's values) is not the effect's
@@ -166,8 +166,8 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     red = [c.reduction for c in shown]
     ax.barh(names, red, color=["C2" if c.label in added else ("0.75" if c.fit_only else "C0") for c in shown])
     if diag.sequence and diag.final is not None:
-        total = (diag.base.rms(primary) - diag.final.rms(primary)) / max(diag.base.rms(primary) - diag.floor, 1e-300)
-        ax.axvline(total, color="C2", ls="--", label=f"added together: {total:.0%}")
+        total = diag.reduction(diag.promised, primary)
+        ax.axvline(total, color="C2", ls="--", label=f"added together, as model add + compare fit it: {total:.0%}")
     ax.axvline(MIN_STEP, color="k", ls=":", label="a step needs (of the excess left)")
     ax.set_xlabel("share of excess error removed on held-out windows (alone)")
     lo = max(min(-0.2, min(red) if red else 0.0), -1.0)  # a candidate far worse than the model: off scale, said
@@ -179,8 +179,9 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     ax.set_title("which effect is missing? (step 1's fitted candidates; green: added; grey: the model\n"
                  "without it does as well at that fit's values)", fontsize=10)
     ax.legend(fontsize=8)
+    _margins_panel(fig.add_subplot(gs[0, 1]), diag)
     # evidence: the held-out window where the base model is worst, base vs best candidate
-    ax = fig.add_subplot(gs[0, 1:])
+    ax = fig.add_subplot(gs[0, 2:])
     base = diag.base
     hw = base.held.windows
     if hw.size and diag.candidates:
@@ -203,6 +204,26 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     ax.set_title("evidence: the held-out window the model fits worst")
     fig.suptitle(diag.summary[:160] + ("..." if len(diag.summary) > 160 else ""), fontsize=9)
     save_png(fig, path, dpi=90)
+
+
+def _margins_panel(ax, diag) -> None:
+    """Each added effect against each rival (the model without it, and substitutes refitted in its place): how
+    many points of the excess it explains more, with the bootstrap's 5-95 % range; green: named, orange: a tie."""
+    rows = [(v, m) for v in diag.verdicts for m in v.margins]
+    if not rows:
+        ax.text(0.5, 0.5, "nothing added: no margins", ha="center", va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+        return
+    y = np.arange(len(rows))[::-1]
+    for yi, (v, m) in zip(y, rows):
+        color = "C2" if m.decided else "C1"
+        ax.errorbar(m.share, yi, xerr=[[m.share - m.lower], [max(m.upper - m.share, 0.0)]], fmt="o", color=color,
+                    capsize=3)
+    ax.set_yticks(y, [f"{v.cand.label}\nover {m.rival}" for v, m in rows], fontsize=7)
+    ax.axvline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("margin: share of the base excess explained beyond the rival")
+    ax.set_title("how firmly? (bootstrap over held-out windows, 5-95 %;\ngreen: named, orange: undecided)",
+                 fontsize=10)
 
 
 def history_figure(entries: list[dict], path: Path) -> None:
