@@ -152,3 +152,33 @@ def test_the_fewest_held_out_windows_that_can_pass_the_consistency_gate():
     for k in (n - 1, n):
         p = stats.wilcoxon(np.arange(1.0, k + 1), alternative="greater").pvalue
         assert z_attainable(k) == pytest.approx(stats.norm.isf(p), rel=1e-9)
+
+
+def test_serial_and_parallel_fits_are_the_same_fits(brake_cfg, monkeypatch):
+    """Issue 25: 'one worker instead of two' may not change a conclusion, so it may not change a fit: the pool's
+    extension fits equal the serial ones to the bit (nfev and success too: the pool had returned 0 and True), and
+    a model's own fit through the chain of what `model add` left at neutral equals it with the joint path in a
+    forked process or not."""
+    rec = simulate(brake_cfg, effects=[parse_effect("accel-sign")], rate=100.0, seed=5, duration=12.0)
+    s = Session(rec, "sim", brake_cfg, max_windows=30)
+    model = seed_model("brake-2dof")
+    base = s.fit(model)
+    assert s.fit(model) is base  # a session fits the same model once
+    tasks = [(Candidate("effect", "accel-sign", "relative"),), (Candidate("mechanics", "k1_N_per_m"),)]
+    serial = fit_extensions(s, base, tasks, workers=1)
+    pool = fit_extensions(s, base, tasks, workers=2)
+    for t in tasks:
+        a, b = serial[t], pool[t]
+        assert a.values == b.values and a.fit.cost == b.fit.cost
+        assert (a.fit.nfev, a.fit.success, a.fit.message) == (b.fit.nfev, b.fit.success, b.fit.message)
+        assert all(np.array_equal(a.ms_held[k], b.ms_held[k]) for k in a.ms_held)
+        assert np.array_equal(a.fit.start_values, b.fit.start_values)
+    extended = model
+    for (c,) in tasks:
+        extended = c.apply(extended, "model add")
+    forked = s.fit(extended)
+    monkeypatch.setattr("daq.models.session._can_fork", lambda: False)
+    s._own_fits.clear()
+    alone = s.fit(extended)
+    assert alone is not forked and alone.values == forked.values and alone.fit.cost == forked.fit.cost
+    assert all(np.array_equal(alone.ms_held[k], forked.ms_held[k]) for k in alone.ms_held)
