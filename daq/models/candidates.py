@@ -88,6 +88,13 @@ def candidates_for(model: Model, mechanics: bool = True) -> list[Candidate]:
     return out
 
 
+def add_command(c: Candidate) -> str:
+    """The `daq model add` arguments that add a candidate."""
+    if c.kind == "mechanics":
+        return f"mechanics.{c.name}"
+    return f"{c.name} --form {c.form}" if c.form else c.name
+
+
 def parse_candidate(text: str) -> Candidate:
     """``mechanics.FIELD`` or ``EFFECT`` or ``EFFECT:FORM`` (as diagnose prints them for `daq model add`)."""
     if text.startswith("mechanics."):

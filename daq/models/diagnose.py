@@ -21,8 +21,6 @@ docs/decisions/0022-effects-confined-to-a-regime.md.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import os
 import time
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -32,12 +30,12 @@ from scipy import stats
 
 from daq.physics.effects import CATALOG
 
-from .candidates import Candidate, candidates_for
-from .margins import Margin, margin
+from .candidates import Candidate, add_command, candidates_for
+from .extensions import fit_extensions, keep_fits
 from .screening import column, linearise, predicted_gain
-from .session import Fitted, Session, portable
-from .shooting import ShootingFit
+from .session import Fitted, Session
 from .spec import Model
+from .verdict import NOTHING, Verdict, delivered_fit, judge
 
 PENALTY_PER_PARAM = 0.02  # reduction an added free parameter must earn
 # ...and a mechanics parameter as much again: a lab weighs its masses and measures its springs, so where an
@@ -174,79 +172,6 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
     s.error_neutral = neutral.rms(session.primary)
     s.fit_only = not passes(score(base, neutral, s.fitted, s.cands, floor, session))
     return not s.fit_only
-
-
-# --------------------------------------------------------------------------- parallel fits
-
-_STATE: dict[str, object] = {}
-FLOOR = "(noise floor)"  # the pool's one task that is not a fit
-
-
-def _extend(model: Model, cands: tuple[Candidate, ...]) -> Model:
-    for c in cands:
-        model = c.apply(model)
-    return model
-
-
-def _fit_task(task) -> tuple:
-    s: Session = _STATE["session"]  # type: ignore[assignment]
-    current: Fitted = _STATE["current"]  # type: ignore[assignment]
-    if task == FLOOR:
-        return task, s.noise_floor(current)
-    root: Model = _STATE["root"]  # type: ignore[assignment]
-    f = s.fit(_extend(root, task), warm=current, cold=_STATE.get("cold"))  # type: ignore[arg-type]
-    return task, portable(f)
-
-
-def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidate, ...]], workers: int | None = None,
-                   on_done=None, floors: dict | None = None,
-                   cold: dict[str, float] | None = None,
-                   root: Model | None = None,
-                   cost: dict[Candidate, float] | None = None) -> dict[tuple[Candidate, ...], Fitted]:
-    """Refit the current model once per extension (a candidate, or a pair), each from the current fit with
-    the new parameters at neutral, in parallel processes if we can. Given a dict ``floors``, the current
-    fit's noise floor is computed too (filled in): in the pool it fills the gap an odd number of fits leaves.
-    Given a ``root``, the extensions are of the root model (a model with less than the current one, which
-    then gives only the start values: the backward check of prune). ``cost``: a guess at each candidate's cost per
-    simulation; the costliest tasks go to the pool first (the order of the results does not depend on it: on the brake
-    bench accel-sign (body) took 7.2 s of 20.6 s of fits and, started last, held one core alone for 4 s)."""
-    root = root or current.model
-    workers = workers or min(len(tasks) + (floors is not None), os.cpu_count() or 1)
-    out: dict[tuple[Candidate, ...], Fitted] = {}
-    if workers > 1 and "fork" in mp.get_all_start_methods():
-        _STATE.update(session=session, current=current, cold=cold, root=root)
-        todo = list(tasks)
-        if cost:
-            todo.sort(key=lambda t: -sum(cost.get(c, 0.0) for c in t))  # stable: equal guesses keep their order
-        todo = ([FLOOR] if floors is not None else []) + todo
-        try:
-            with mp.get_context("fork").Pool(workers) as pool:
-                for task, parts in pool.imap_unordered(_fit_task, todo):
-                    if task == FLOOR:
-                        floors.update(parts)  # type: ignore[union-attr]
-                        continue
-                    out[task] = session.restore(parts)
-                    if on_done:
-                        on_done(task)
-        finally:
-            _STATE.clear()
-        return out
-    if floors is not None:
-        floors.update(session.noise_floor(current))
-    for task in tasks:
-        out[task] = session.fit(_extend(root, task), warm=current, cold=cold)
-        if on_done:
-            on_done(task)
-    return out
-
-
-def keep_fits(seen: dict, prefix: tuple[Candidate, ...], fits: dict[tuple[Candidate, ...], Fitted]) -> None:
-    """Remember each fit by the set of candidates the base model was extended by (the current model's ``prefix``
-    and the task's); of two fits of one model the lower fit cost is kept (all share the base fit's window weights)."""
-    for task, f in fits.items():
-        key = frozenset(prefix + task)
-        if key not in seen or f.fit.cost < seen[key].fit.cost:
-            seen[key] = f
 
 
 # --------------------------------------------------------------------------- screening
@@ -390,13 +315,6 @@ class Diagnosis:
         }
 
 
-def add_command(c: Candidate) -> str:
-    """The `daq model add` arguments that add a candidate."""
-    if c.kind == "mechanics":
-        return f"mechanics.{c.name}"
-    return f"{c.name} --form {c.form}" if c.form else c.name
-
-
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
           first: bool, cold: dict[str, float], seen: dict | None = None,
           prefix: tuple[Candidate, ...] = ()) -> tuple[list[Scored], list[Screened], Scored | None]:
@@ -502,121 +420,6 @@ def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate
     return members, final
 
 
-# --------------------------------------------------------------------------- margins: how firmly, and against what
-
-NOTHING = "nothing more"  # the rival every named effect has: the model without it
-RIVALS = 2  # per named effect: the best other phenomena of the step it entered in, each refitted in its place...
-RIVAL_SHARE = 0.5  # ...that explained at least this share of what the named one did alone in that step
-
-
-@dataclass
-class Verdict:
-    """A member of the final model and how firmly the held-out windows prefer it: over the model without it
-    (margins[0]) and over each plausible rival refitted in its place; over its phenomenon's other forms."""
-
-    cand: Candidate
-    margins: list[Margin]
-    forms: list[Margin] = field(default_factory=list)
-
-    @property
-    def needed(self) -> bool:
-        return self.margins[0].decided
-
-    @property
-    def decided(self) -> bool:
-        return all(m.decided for m in self.margins)
-
-    @property
-    def ties(self) -> list[Margin]:
-        """The rivals the data cannot tell from it."""
-        return [m for m in self.margins[1:] if not m.decided]
-
-    @property
-    def weakest(self) -> Margin:
-        return min(self.margins, key=lambda m: (m.lower, m.rival))
-
-    def as_json(self) -> dict:
-        w = self.weakest
-        return {"effect": self.cand.phenomenon, "form": self.cand.form, "label": self.cand.label,
-                "decided": self.decided, "margin": w.share, "margin_lower": w.lower, "nearest_rival": w.rival,
-                "rivals": [m.as_json() for m in self.margins],
-                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms]}
-
-
-def rivals_for(x: Candidate, singles: list[Scored], members: list[Candidate]) -> list[Candidate]:
-    """Plausible substitutes for ``x``: the best form of each other phenomenon among the singles of the step x
-    entered in (not already a member), consistent (z >= MIN_T) and explaining at least RIVAL_SHARE of what x did
-    alone there; at most RIVALS, best first."""
-    taken = {m.phenomenon for m in members}
-    own = next((s.reduction for s in singles if s.cands == (x,)), 0.0)
-    out: dict[str, Candidate] = {}
-    for s in sorted(singles, key=lambda s: (-s.score, s.label)):
-        c = s.cands[0]
-        if c.phenomenon in taken or c.phenomenon in out:
-            continue
-        if s.t_stat >= MIN_T and s.reduction > 0 and s.reduction >= RIVAL_SHARE * own:
-            out[c.phenomenon] = c
-    return list(out.values())[:RIVALS]
-
-
-def judge(session: Session, base: Fitted, final: Fitted, members: list[Candidate], entered: dict[Candidate, list],
-          seen: dict, floor: float, say, workers) -> tuple[list[Candidate], Fitted, list[Verdict]]:
-    """Margins for every member of the final model: the paired bootstrap over held-out windows (margins.py) of the
-    final model against the model without it and against each plausible rival refitted in its place (fits already
-    made are reused from ``seen``). A member the data do not prefer over nothing at that margin is dropped (the
-    weakest first, then all are judged again); a rival it does not beat stays standing beside it: a tie.
-    Why substitution and not the step's own ranking: a step's singles each extend the model of that step, and an
-    effect taken first can stand in for a later one (a mass for a friction keyed to acceleration) until the later
-    one is in; only the final model with the rival in the member's place says which the data prefer."""
-    p = session.primary
-    cap = CAP_MS * float(np.median(base.ms_held[p])) if base.ms_held else float("inf")
-    excess = base.rms(p) - floor
-    members = list(members)
-    while members:
-        plan: dict[Candidate, list[tuple[str, tuple[Candidate, ...]]]] = {}
-        for x in members:
-            rest = tuple(m for m in members if m != x)
-            plan[x] = [(NOTHING, rest)] + [(y.label, rest + (y,)) for y in rivals_for(x, entered.get(x, []), members)]
-        todo: list[tuple[Candidate, ...]] = []
-        for x in members:
-            for _, t in plan[x]:
-                if t and frozenset(t) not in seen and frozenset(t) not in map(frozenset, todo):
-                    todo.append(t)
-        if todo:
-            say("margins: refitting " + ", ".join(" + ".join(c.label for c in t) for t in todo))
-            keep_fits(seen, (), fit_extensions(session, final, todo, workers, root=base.model))
-        verdicts = []
-        for x in members:
-            ms = [margin(x.label, name, final.ms_held[p], (seen[frozenset(t)] if t else base).ms_held[p], excess, cap)
-                  for name, t in plan[x]]
-            own = next((s for s in entered.get(x, []) if s.cands == (x,)), None)
-            forms = [margin(x.label, s.label, own.fitted.ms_held[p], s.fitted.ms_held[p], excess, cap)
-                     for s in entered.get(x, []) if own is not None and own.fitted is not None and s.fitted is not None
-                     and s.cands[0].phenomenon == x.phenomenon and s.cands != (x,)]
-            verdicts.append(Verdict(x, ms, forms))
-        say("margins: " + "; ".join(f"{v.cand.label} over {m.rival} {m.share:+.2f} (5 % bound {m.lower:+.2f})"
-                                    for v in verdicts for m in v.margins))
-        weak = [v for v in verdicts if not v.needed]
-        if not weak:
-            return members, final, verdicts
-        v = min(weak, key=lambda v: (v.margins[0].lower, v.cand.label))
-        members.remove(v.cand)
-        final = seen[frozenset(members)] if members else base
-        say(f"  dropped {v.cand.label}: the model without it does as well within the margin "
-            f"({v.margins[0].share:+.2f}, 5 % bound {v.margins[0].lower:+.2f})")
-    return [], base, []
-
-
-def delivered_fit(session: Session, model: Model, members: list[Candidate]) -> Fitted:
-    """What the user gets: the model file with each member added as `daq model add` adds it, fitted as `daq compare`
-    fits it (the same session, so the same windows and noise). Why not the diagnosis's own fit: it starts from the
-    fitted base model with the candidates' paths, a compare starts from the file's values; the two can end in
-    different basins, and a promise is only worth what the user's own commands reproduce."""
-    for c in members:
-        model = c.apply(model, f"model add {add_command(c)}")
-    return session.fit(model)
-
-
 # --------------------------------------------------------------------------- the whole diagnosis
 
 
@@ -663,7 +466,9 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
         members, current = prune(session, base, current, members, floor, say, workers, seen)
     verdicts: list[Verdict] = []
     if members:
-        members, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers)
+        cap = CAP_MS * float(np.median(base.ms_held[primary])) if base.ms_held else float("inf")
+        members, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers,
+                                           cap=cap, min_t=MIN_T)
     if [c for s in sequence for c in s.cands] != members:  # what is left, scored as one step from the base model
         sequence = [score(base, base, current, tuple(members), floor, session)] if members else []
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
