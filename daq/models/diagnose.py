@@ -295,7 +295,7 @@ class Diagnosis:
             "final_model": final.model.describe(),
             "final_error": final.rms(primary),
             "final_reduction": self.reduction(final, primary),  # what `model add` + `compare` deliver (delivered_fit)
-            "search_error": (self.final or self.base).rms(primary),  # the diagnosis's own fit of the same model
+            "search_error": e0 - self.search_total * (e0 - self.floor),  # the diagnosis's own fit of the same model
             "search_reduction": self.search_total,
             "unexplained": unexplained(session, self) if self.found else None,
             "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
@@ -464,27 +464,42 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     members = [c for s in sequence for c in s.cands]
     if len(members) >= 2:
         members, current = prune(session, base, current, members, floor, say, workers, seen)
-    verdicts: list[Verdict] = []
-    if members:
-        cap = CAP_MS * float(np.median(base.ms_held[primary])) if base.ms_held else float("inf")
-        members, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers,
-                                           cap=cap, min_t=MIN_T)
+    search, verdicts, delivered = current, [], None
+    cap = CAP_MS * float(np.median(base.ms_held[primary])) if base.ms_held else float("inf")
+    while members:
+        if deliver:  # the promise, and the fit the margins are judged on when it is the better one (decision 28)
+            say("what the user gets: the model file + " + ", ".join(c.label for c in members) + ", fitted as compare does")
+            delivered = delivered_fit(session, model, members)
+            if fit_error(session, delivered) < fit_error(session, current):
+                say(f"  the user's path fits better than the diagnosis's ({delivered.rms(primary):.4g} against "
+                    f"{current.rms(primary):.4g} {unit} held out): margins judged on it")
+                current = seen[frozenset(members)] = delivered
+        kept, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers,
+                                        cap=cap, min_t=MIN_T)
+        if kept == members:
+            break
+        members, search = kept, current  # one dropped: the rest's promise is fitted again
     if [c for s in sequence for c in s.cands] != members:  # what is left, scored as one step from the base model
-        sequence = [score(base, base, current, tuple(members), floor, session)] if members else []
+        sequence = [score(base, base, search, tuple(members), floor, session)] if members else []
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
     total = (e0 - current.rms(primary)) / (e0 - floor) if e0 > floor else 0.0
     z_total = consistency(session.weighted(base.ms_held) - session.weighted(current.ms_held)) if sequence else 0.0
     # every step passed on its own held-out evidence; the combined model must hold up as a whole too
     found = bool(sequence and excess_ratio > MIN_EXCESS and total >= MIN_STEP and z_total >= MIN_T)
-    delivered = None
-    if found and deliver:
-        say("what the user gets: the model file + " + ", ".join(c.label for c in members) + ", fitted as compare does")
-        delivered = delivered_fit(session, model, members)
+    search_total = (e0 - search.rms(primary)) / (e0 - floor) if e0 > floor and members else 0.0
+    delivered = delivered if found else None
     corr = correlations(session, base)
     d = Diagnosis(base, floor, floors, first_scored, found, "", corr, sequence, first_screened,
-                  current if sequence else None, verdicts, delivered, total)
+                  current if sequence else None, verdicts, delivered, search_total)
     d.summary = _summary(session, d, excess_ratio)
     return d
+
+
+def fit_error(session: Session, f: Fitted) -> float:
+    """A fit's mean square on the fit windows, each output in units of its noise: which of two fits of one model is
+    the better one, read off the data it was fitted to (not the held-out windows it is judged on; the window
+    weights of two fits need not be the same, so not their costs)."""
+    return float(np.mean(session.weighted(f.ms_fit)))
 
 
 def _meaning(c: Candidate) -> str:
