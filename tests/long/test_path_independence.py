@@ -13,14 +13,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/ (recovery_table, refsim)
 
-from recovery_table import RAMPS, refsim  # noqa: E402
+from recovery_table import RAMPS, refsim
 
-from daq.cli.main import main as daq  # noqa: E402
-from daq.io.loading import load_data  # noqa: E402
-from daq.models import diagnose as D  # noqa: E402
-from daq.models.candidates import Candidate  # noqa: E402
-from daq.models.session import Session  # noqa: E402
-from daq.models.spec import load_model, rig_config_for  # noqa: E402
+from daq.cli.main import main as daq
+from daq.io.loading import load_data
+from daq.models import diagnose as D
+from daq.models.candidates import Candidate
+from daq.models.session import Session
+from daq.models.spec import load_model, rig_config_for
 
 K1 = (Candidate("mechanics", "k1_N_per_m"),)
 
