@@ -249,6 +249,7 @@ class Diagnosis:
     verdicts: list[Verdict] = field(default_factory=list)  # each member's margins (judge)
     delivered: Fitted | None = None  # the same model as `model add` + `compare` fit it: what is promised
     search_total: float = 0.0  # the share of the excess the diagnosis's own fit removed
+    rest: dict | None = None  # where the excess the promise leaves lives, when it leaves much (unexplained)
 
     @property
     def promised(self) -> Fitted:
@@ -297,7 +298,7 @@ class Diagnosis:
             "final_reduction": self.reduction(final, primary),  # what `model add` + `compare` deliver (delivered_fit)
             "search_error": e0 - self.search_total * (e0 - self.floor),  # the diagnosis's own fit of the same model
             "search_reduction": self.search_total,
-            "unexplained": unexplained(session, self) if self.found else None,
+            "unexplained": self.rest,
             "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
                             "step_reduction": c.step_reduction, "score": c.score, "error": c.error,
                             "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
@@ -494,6 +495,7 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     corr = correlations(session, base)
     d = Diagnosis(base, floor, floors, first_scored, found, "", corr, sequence, first_screened,
                   current if sequence else None, verdicts, delivered, search_total)
+    d.rest = unexplained(session, d) if found else None
     d.summary = _summary(session, d, excess_ratio)
     return d
 
@@ -561,7 +563,7 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
                  else f"It removes {share:.0%} of the excess error on held-out windows")
         parts.append(f"{whole} as `model add` + `compare` fit it ({e0:.3g} -> {f.rms(session.primary):.3g} {unit}, "
                      f"noise floor {floor:.3g}); fitted {vals or 'no parameters'}. To add: {cmds}.")
-        rest = unexplained(session, d)
+        rest = d.rest
         if rest is not None:
             follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in rest["follows"]
                                 if abs(c["spearman_rho"]) > 0.3) or "nothing measured"
