@@ -23,11 +23,11 @@ from daq.models import robust
 from daq.models.data import rig_data
 from daq.models.session import Session
 from daq.models.spec import seed_model
-from daq.signals import _single_departures, impulsive_runs
+from daq.signals import _single_departures, impulsive_runs, timing_noise
 from daq.sim.run import simulate as simulate_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim)
-from refsim.make import generate  # noqa: E402
+from refsim.make import generate, write  # noqa: E402
 from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
 
 # ----------------------------------------------------------------------------- the loss
@@ -198,3 +198,48 @@ def test_a_lab_slider_record_with_bursts_goes_through_the_users_path_at_the_nois
     law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0")}
     assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45}, rel=0.03), law
     assert res["error"] < 1.15 * res["noise_floor"], (res["error"], res["noise_floor"])
+
+
+# ----------------------------------------------------------------------------- clock jitter
+
+
+def _stick_slip_speed(n_win: int = 60, length: int = 80, rate: float = 100.0) -> np.ndarray:
+    """Speeds of windows of a stick-slip at ``rate``: the block rides a decelerating belt, then slips back fast."""
+    t = np.arange(n_win * length) / rate
+    belt = 0.17 - 0.15 * t / t[-1]
+    phase = (t * 4.0) % 1.0  # 4 cycles a second, 80 % stick
+    v = np.where(phase < 0.8, belt, belt - 1.2 * np.sin(np.pi * (phase - 0.8) / 0.2))
+    return v.reshape(n_win, length)
+
+
+def test_clock_jitter_is_read_from_the_white_part_of_the_residual_and_a_smooth_model_error_is_not():
+    """White noise plus x'(t) e (e ~ 0.2 ms): read back within 10 %; the same noise with a smooth error growing
+    with speed (what a missing effect leaves) or none: no jitter at all."""
+    rng = np.random.default_rng(4)
+    v = _stick_slip_speed()
+    noise = rng.normal(0.0, 5e-6, v.shape)
+    jittered = noise + v * rng.normal(0.0, 2e-4, v.shape)
+    assert timing_noise(jittered, v) == pytest.approx(2e-4, rel=0.1)
+    smooth_error = 3e-4 * np.cumsum(v, axis=1) / 100.0 + 2e-4 * v  # drift and an offset proportional to speed
+    assert timing_noise(noise + smooth_error, v) == 0.0
+    assert timing_noise(noise, v) == 0.0
+
+
+def test_a_jittered_record_has_a_floor_that_counts_the_jitter_and_a_clean_one_keeps_its_floor(tmp_path):
+    """The brake at 100 Hz, nothing hidden, clock jitter of 2 % of a period (0.2 ms, 34 um a sample where the block
+    rides the belt at 0.17 m/s): the seed model is the true model, so its error is what a perfect model shows and
+    the floor must come out there (it was 4.96 um against 23.25 before the floor counted the jitter). The clean
+    record's floor is the instrument's noise, as before. (On the first 20 s alone, 72 windows of 20 samples, the
+    jitter reads 0.15 ms: the estimate wants the record's length.)"""
+    floors = {}
+    for name, jitter in (("clean", 0.0), ("jittered", 2e-4)):
+        rec = generate("brake-2dof", rate=100.0, duration=40.0, seed=3, V0=0.17, Tmax=45.0, jitter_s=jitter)
+        write(rec, tmp_path / f"{name}.csv")
+        s = Session.open(tmp_path / f"{name}.csv", seed_model("brake-2dof"), rig="brake-2dof")
+        fitted = s.fit(seed_model("brake-2dof"))
+        floors[name] = (fitted.rms("x1"), s.noise_floor(fitted)["x1"], s.timing_noise(fitted))
+    error, floor, jitter = floors["jittered"]
+    assert jitter == pytest.approx(2e-4, rel=0.15)
+    assert floor == pytest.approx(error, rel=0.12) and floor > 3.0 * floors["clean"][1], floors
+    error, floor, jitter = floors["clean"]
+    assert jitter == 0.0 and floor == pytest.approx(error, rel=0.12) and floor < 6e-6, floors

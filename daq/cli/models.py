@@ -183,6 +183,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print("  by regime: " + "; ".join(f"{k} {v['error']:.3g}" for k, v in res["by_regime"].items()))
         print("  by signal: " + "; ".join(f"{k} {v['error']:.3g} {v['unit']} (floor {v['noise_floor']:.3g})"
                                           for k, v in res["by_signal"].items()))
+        if res["clock_jitter_s"] > 0:
+            print(f"  clock jitter {res['clock_jitter_s'] * 1e3:.3g} ms (samples taken early or late, read from the "
+                  "residual's sample-to-sample part growing with speed): counted in the noise floor")
         far = {k: n for k, n in res["residual_outliers"].items() if n}
         if far:
             print(f"  beyond {OUTLIER_SIGMAS:g} noise levels of the model (spikes left, or where it fails): "

@@ -112,6 +112,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
         "error_unit": m.units[primary],
         "error_signal": primary,
         "noise_floor": floor[primary],
+        "clock_jitter_s": session.timing_noise(fitted),  # read from the residual, counted in the floor (0: none)
         "error_all_windows": _rms(res[primary]),
         "error_definition": ERROR_DEFINITION,
         "parameters": {k: {"value": fitted.values[k], "std": fitted.fit.std.get(k)} for k in fitted.model.free_names()},

@@ -172,6 +172,12 @@ class RigData(ABC):
     def predict(self, sim: SimRig, states: np.ndarray) -> dict[str, np.ndarray]:
         """The output signals from simulated states (last axis = state)."""
 
+    def output_rates(self, sim: SimRig, states: np.ndarray, dt: float) -> dict[str, np.ndarray]:
+        """The outputs' time derivatives from simulated states (samples on the second-to-last axis): what a sample
+        taken early or late by clock jitter reads wrong, per second of it. Here by differences at the sample
+        rate; rigs whose outputs are states override it with the states' own rates (exact through a slip)."""
+        return {k: np.gradient(x, dt, axis=-1) for k, x in self.predict(sim, states).items()}
+
     @abstractmethod
     def start_state(self, sim: SimRig, m: Measured, i: int) -> np.ndarray:
         """Full state (mechanics + contact tail) at sample i, velocities from the data."""
@@ -330,6 +336,9 @@ class BrakeData(RigData):
 
     def predict(self, sim, states):
         return {"x1": states[..., 0], "phi": states[..., 2] / sim.p[brake2dof.P.r]}
+
+    def output_rates(self, sim, states, dt):
+        return {"x1": states[..., 1], "phi": states[..., 3] / sim.p[brake2dof.P.r]}
 
     def start_state(self, sim, m, i):
         c = m.context
@@ -541,6 +550,9 @@ class BeltData(RigData):
 
     def predict(self, sim, states):
         return {f"x{i + 1}": states[..., i] for i in range(self.n)}
+
+    def output_rates(self, sim, states, dt):
+        return {f"x{i + 1}": states[..., self.n + i] for i in range(self.n)}
 
     def start_state(self, sim, m, i):
         c, n = m.context, self.n
