@@ -198,6 +198,10 @@ def test_a_lab_slider_record_with_bursts_goes_through_the_users_path_at_the_nois
     law = {k: res["parameters"][f"friction.{k}"]["value"] for k in ("f_s0", "f_k0")}
     assert law == pytest.approx({"f_s0": 0.62, "f_k0": 0.45}, rel=0.03), law
     assert res["error"] < 1.15 * res["noise_floor"], (res["error"], res["noise_floor"])
+    # the true law's free run has the record's cycles (issue 31's figures, within 10 %), read by the same rule
+    cyc = res["cycles"]
+    assert cyc["record"]["cycles"] >= 20, cyc
+    assert all(abs(d) < 0.10 for d in cyc["relative_difference"].values()), cyc
 
 
 # ----------------------------------------------------------------------------- clock jitter

@@ -152,7 +152,7 @@ def _append_history(path: Path, res: dict) -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.compare import OUTLIER_SIGMAS, compare
-    from daq.models.figures import compare_figure, spectrogram_figure
+    from daq.models.figures import compare_figure, cycles_figure, spectrogram_figure
     from daq.models.spec import save_model
 
     model, s = _session(args)
@@ -168,6 +168,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         rep.mkdir(parents=True, exist_ok=True)
         compare_figure(s, f, {**res, "_plot": plot}, rep / "compare.png")
         spectrogram_figure(s, {**res, "_plot": plot}, rep / "spectrogram.png")
+        cycles_figure(s, {**res, "_plot": plot}, rep / "cycles.png")
         (rep / "compare.json").write_text(dumps_json(res))
         save_model(f.model, rep / "fitted.toml")
         res["report"] = str(rep)
@@ -196,6 +197,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
                   + ", ".join(f"{k} {n} samples" for k, n in capped.items()))
         print("  invariants (measured / model): " + "; ".join(
             f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
+        c = res["cycles"]
+        print(f"  cycles (record / model free run, medians; {c['record']['cycles']} / {c['model']['cycles']} cycles): "
+              f"stick {c['record']['stick_s_median']:.3g} / {c['model']['stick_s_median']:.3g} s, "
+              f"drop {c['record']['drop_median']:.3g} / {c['model']['drop_median']:.3g} {c['unit']}, "
+              f"slip {c['record']['slip_s_median']:.3g} / {c['model']['slip_s_median']:.3g} s, "
+              f"mean period {c['record']['period_s_mean']:.3g} / {c['model']['period_s_mean']:.3g} s")
         print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))
     return 0
 

@@ -4,8 +4,9 @@ Why these breakdowns: a single error number says *that* a model fails; the
 breakdown by regime (stick/creep, slip, accelerating vs decelerating sliding,
 belt-speed bands), by time and by signal says *where*, which is what points to
 the missing physics. Forward-simulation invariants (stick-slip frequency, slip
-amplitude, stick fraction, spectrogram) judge the model on cycle features,
-which phase drift cannot swamp.
+amplitude, stick fraction, spectrogram) and the cycles' distributions (stick time,
+force drop, slip duration, period: cycle_features.py) judge the model on cycle
+features, which phase drift cannot swamp.
 
 Decision record: docs/decisions/0009-held-out-scoring-and-noise-floor.md.
 """
@@ -20,9 +21,11 @@ from daq.physics.contact import AUX
 from daq.signals import dominant_frequency, paper_spectrogram
 
 from . import robust
+from .cycle_features import load_cycles, side_by_side
 from .session import Fitted, Session
 
 N_TIME_BINS = 10
+CYCLE_SEED = 7  # the noise put on the free run before its cycles are read (fixed: the same JSON every run)
 OUTLIER_SIGMAS = 5.0  # a residual this many noise levels off counts as an outlier (Gaussian noise: 6e-7 of samples)
 ERROR_DEFINITION = ("rms of model - measured of the primary signal on the held-out windows (every third short "
                     "window, never used to fit the model's parameters), each simulated from the data's state at its "
@@ -138,11 +141,17 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     meas_inv = invariants(session, tt, m.outputs[primary][fidx], m.v_rel[fidx])
     model_inv = invariants(session, tt, pred[primary], aux[:, AUX.V_REL])
     out["invariants"] = {k: {"measured": meas_inv[k], "model": model_inv[k]} for k in meas_inv}
+    # the free run read as the record is: with the record's noise on it (fixed seed), by the same rule
+    sigma = m.sigma[primary]
+    noisy = pred[primary] + np.random.default_rng(CYCLE_SEED).normal(0.0, sigma, pred[primary].size)
+    cyc_rec, cyc_model = load_cycles(tt, m.outputs[primary][fidx], sigma), load_cycles(tt, noisy, sigma)
+    out["cycles"] = {**side_by_side(cyc_rec, cyc_model), "signal": primary, "unit": m.units[primary]}
     try:
         ts, fm = spectral_line(tt, m.outputs[primary][fidx])
         _, fs = spectral_line(tt, pred[primary])
         out["spectral_line"] = {"t": ts.tolist(), "measured_Hz": fm.tolist(), "model_Hz": fs.tolist()}
     except ValueError:
         out["spectral_line"] = None
-    out["_plot"] = {"idx": idx, "res": res, "fidx": fidx, "pred": pred, "states": states, "aux": aux}
+    out["_plot"] = {"idx": idx, "res": res, "fidx": fidx, "pred": pred, "states": states, "aux": aux,
+                    "cycles": (cyc_rec, cyc_model)}
     return out

@@ -152,6 +152,28 @@ def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
     save_png(fig, path, dpi=90)
 
 
+def cycles_figure(session: Session, result: dict, path: Path) -> None:
+    """The cycles' distributions, record against the model's free run (compare's "cycles")."""
+    rec, mod = result["_plot"]["cycles"]
+    unit = result["cycles"]["unit"]
+    fig, axes = plt.subplots(1, 4, figsize=(15, 3.8), constrained_layout=True)
+    for ax, (key, label) in zip(axes, (("stick_s", "stick time [s]"), ("drop", f"load drop [{unit}]"),
+                                       ("slip_s", "slip duration [s]"), ("period_s", "period [s]"))):
+        both = np.concatenate([rec[key], mod[key]])
+        if both.size:
+            bins = np.linspace(np.min(both), np.max(both) + 1e-300, 30)
+            ax.hist(rec[key], bins=bins, alpha=0.6, label=f"record ({rec[key].size})")
+            ax.hist(mod[key], bins=bins, alpha=0.6, label=f"model free run ({mod[key].size})")
+            for x, c in ((rec[key], "C0"), (mod[key], "C1")):
+                if x.size:
+                    ax.axvline(np.median(x), color=c, ls="--", lw=1)
+        ax.set_xlabel(label)
+    axes[0].set_ylabel("cycles")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"stick-slip cycles of {result['cycles']['signal']} (dashed: medians)")
+    save_png(fig, path, dpi=90)
+
+
 def diagnose_figure(session: Session, diag, path: Path) -> None:
     m = session.m
     primary = session.primary
