@@ -199,7 +199,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
         c = res["cycles"]
         print(f"  cycles (record / model free run, medians; {c['record']['cycles']} / {c['model']['cycles']} cycles): "
-              f"stick {c['record']['stick_s_median']:.3g} / {c['model']['stick_s_median']:.3g} s, "
+              f"stick {c['record']['stick_s_median']:.3g} / {c['model']['stick_s_median']:.3g} s "
+              f"(at the peak load {c['record']['creep_s_median']:.3g} / {c['model']['creep_s_median']:.3g} s), "
               f"drop {c['record']['drop_median']:.3g} / {c['model']['drop_median']:.3g} {c['unit']}, "
               f"slip {c['record']['slip_s_median']:.3g} / {c['model']['slip_s_median']:.3g} s, "
               f"mean period {c['record']['period_s_mean']:.3g} / {c['model']['period_s_mean']:.3g} s")

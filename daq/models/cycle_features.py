@@ -7,11 +7,15 @@ the same rule as the record, or the comparison measures the rule. Why distributi
 error: over a record the free run drifts in phase, so pointwise it is wrong by a whole drop while its cycles
 may be right (issue 31); and a real contact's sticks differ from one another, which a median and quartiles show.
 
-A cycle is read between two load peaks: the peak is where the contact lets go (the static threshold), the
-lowest load before the next peak is where the slip ends; peaks and valleys alternate with a hysteresis of
-``PROMINENCE_SIGMAS`` noise levels (:func:`turning_points`), on the signal after a 5-sample median (an
-impulsive spike is no peak). Per cycle: ``drop`` = peak - following minimum, ``slip_s`` = its duration,
-``stick_s`` = the rise from that minimum to the next peak, ``period_s`` = peak to next peak. The live detector
+A cycle runs from one slip's start to the next's. Peaks and valleys of the load alternate with a hysteresis of
+``PROMINENCE_SIGMAS`` noise levels (:func:`turning_points`), on the signal after a 5-sample median (an impulsive
+spike is no peak); a slip starts at the last sample within ``ONSET_SIGMAS`` noise levels of its peak and ends at
+the valley. Per cycle: ``drop`` = peak - valley, ``slip_s`` its duration, ``stick_s`` from the valley to the next
+slip's start, ``creep_s`` the part of that spent at the peak load (within ``ONSET_SIGMAS``: a contact that
+creeps before it slips holds its load while it moves; a linear rise spends 2 sigma / its loading rate there
+anyway, the same on both sides of a comparison), ``period_s`` slip start to slip start. Why a slip's start and
+not its peak: the lab's 42 um/s record plateaus at its peak for ~0.2 s before it drops (the peak of a noisy
+plateau falls anywhere on it, and "slips" of 0.2 s were read). The live detector
 (daq/estimation/cycles.py) reads cycles from the estimator's v_rel instead; this one needs only the record.
 """
 
@@ -21,20 +25,28 @@ import numpy as np
 from scipy.signal import medfilt
 
 PROMINENCE_SIGMAS = 6.0  # a drop smaller than this many noise levels is not told from noise on a 2 kHz record
-FEATURES = ("stick_s", "drop", "slip_s", "period_s")
+ONSET_SIGMAS = 2.0  # the load has left its peak when it is this many noise levels below it
+FEATURES = ("stick_s", "creep_s", "drop", "slip_s", "period_s")
 
 
 def load_cycles(t: np.ndarray, x: np.ndarray, sigma: float) -> dict[str, np.ndarray]:
-    """Per cycle of the load signal ``x`` (noise level ``sigma``, same unit): stick_s, drop, slip_s, period_s and
-    the peak time ``t``; empty arrays when fewer than two peaks stand out."""
+    """Per cycle of the load signal ``x`` (noise level ``sigma``, same unit): stick_s, creep_s, drop, slip_s,
+    period_s, the slip's start time ``t`` and the peak load ``peak``; empty arrays when fewer than three peaks
+    stand out. A cycle runs from one slip's start to the next's."""
     x = np.asarray(x, dtype=float)
     xs = medfilt(x, 5) if x.size >= 5 else x
     peaks, valleys = turning_points(xs, PROMINENCE_SIGMAS * max(sigma, 1e-300))
-    if peaks.size < 2:
-        return {k: np.zeros(0) for k in (*FEATURES, "t")}
-    p0, p1 = peaks[:-1], peaks[1:]
-    return {"t": t[p0], "drop": xs[p0] - xs[valleys], "slip_s": t[valleys] - t[p0], "stick_s": t[p1] - t[valleys],
-            "period_s": t[p1] - t[p0]}
+    if peaks.size < 3:
+        return {k: np.zeros(0) for k in (*FEATURES, "t", "peak")}
+    near = ONSET_SIGMAS * sigma
+    # the slip starts where the load leaves its peak for good: the last sample within ``near`` of it before the valley
+    starts = np.array([p + int(np.flatnonzero(xs[p:v + 1] >= xs[p] - near)[-1]) for p, v in zip(peaks[:-1], valleys)])
+    # the load reaches its peak (within ``near``) first: from there to the slip, the contact holds its peak load
+    reached = np.array([v + int(np.flatnonzero(xs[v:s + 1] >= xs[p] - near)[0])
+                        for v, s, p in zip(valleys[:-1], starts[1:], peaks[1:-1])])
+    s0, s1, v0 = starts[:-1], starts[1:], valleys[:-1]
+    return {"t": t[s0], "peak": xs[peaks[:-2]], "drop": xs[peaks[:-2]] - xs[v0], "slip_s": t[v0] - t[s0],
+            "stick_s": t[s1] - t[v0], "creep_s": t[s1] - t[reached], "period_s": t[s1] - t[s0]}
 
 
 def turning_points(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:

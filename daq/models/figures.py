@@ -156,9 +156,10 @@ def cycles_figure(session: Session, result: dict, path: Path) -> None:
     """The cycles' distributions, record against the model's free run (compare's "cycles")."""
     rec, mod = result["_plot"]["cycles"]
     unit = result["cycles"]["unit"]
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.8), constrained_layout=True)
-    for ax, (key, label) in zip(axes, (("stick_s", "stick time [s]"), ("drop", f"load drop [{unit}]"),
-                                       ("slip_s", "slip duration [s]"), ("period_s", "period [s]"))):
+    fig, axes = plt.subplots(1, 5, figsize=(18, 3.8), constrained_layout=True)
+    for ax, (key, label) in zip(axes, (("stick_s", "stick time [s]"), ("creep_s", "of it at the peak load [s]"),
+                                       ("drop", f"load drop [{unit}]"), ("slip_s", "slip duration [s]"),
+                                       ("period_s", "period [s]"))):
         both = np.concatenate([rec[key], mod[key]])
         if both.size:
             bins = np.linspace(np.min(both), np.max(both) + 1e-300, 30)
