@@ -65,14 +65,15 @@ def timing_noise(residual: np.ndarray, speed: np.ndarray, bins: int = 8, min_ris
     jitter, nothing / aging / accel-sign hidden: 0.192 / 0.193 / 0.194 ms; without jitter: 0 on all three.
     """
     r = np.atleast_2d(np.asarray(residual, dtype=float))
-    v2 = np.atleast_2d(np.asarray(speed, dtype=float)) ** 2
+    v = np.atleast_2d(np.asarray(speed, dtype=float))
+    v2 = v ** 2
     if r.shape[-1] < 3:
         return 0.0
     w = (r[:, 1:-1] - 0.5 * (r[:, :-2] + r[:, 2:])).ravel()
     u = (v2[:, 1:-1] + 0.25 * (v2[:, :-2] + v2[:, 2:])).ravel()
     ok = np.isfinite(w) & np.isfinite(u)
     if smooth_share < 1.0:
-        a = np.abs(np.gradient(np.atleast_2d(np.asarray(speed, dtype=float)), axis=-1))
+        a = np.abs(np.gradient(v, axis=-1))
         a3 = np.maximum(np.maximum(a[:, 1:-1], a[:, :-2]), a[:, 2:]).ravel()
         ok &= a3 <= np.quantile(a3[np.isfinite(a3)], smooth_share)
     w, u = w[ok], u[ok]

@@ -65,6 +65,7 @@ class Fitted:
     ms_held: dict[str, np.ndarray]  # per held-out window, mean-square error per output
     ms_fit: dict[str, np.ndarray]
     _all_starts: np.ndarray | None = field(default=None, repr=False)  # start_values() of every window, once
+    _jitter_s: float | None = field(default=None, repr=False)  # Session.timing_noise of this fit, once
 
     def rms(self, output: str, which: str = "held") -> float:
         """rms error of one output over the held-out windows ("held"; the fit windows when a record is too short
@@ -417,13 +418,16 @@ class Session:
 
     def timing_noise(self, fitted: Fitted) -> float:
         """Clock jitter [s] the fitted model's residual shows on the primary output (signals.timing_noise), 0
-        where it shows none: samples taken early or late but stamped on the grid, which no model can undo."""
-        pr = fitted.problem
-        scored = self.win.scored()
-        shot = pr.shoot(fitted.values, scored, fitted.start_values(scored))
-        k = self.primary
-        rates = self.rd.output_rates(pr.sim(fitted.values), shot.states, float(self.m.t[1] - self.m.t[0]))
-        return timing_noise((shot.pred[k] - shot.meas[k])[:, 1:], rates[k][:, 1:])
+        where it shows none: samples taken early or late but stamped on the grid, which no model can undo. Read
+        once per fit (the floor and compare's JSON both ask)."""
+        if fitted._jitter_s is None:
+            pr = fitted.problem
+            scored = self.win.scored()
+            shot = pr.shoot(fitted.values, scored, fitted.start_values(scored))
+            k = self.primary
+            rates = self.rd.output_rates(pr.sim(fitted.values), shot.states, float(self.m.t[1] - self.m.t[0]))
+            fitted._jitter_s = timing_noise((shot.pred[k] - shot.meas[k])[:, 1:], rates[k][:, 1:])
+        return fitted._jitter_s
 
     def noise_floor(self, fitted: Fitted, seed: int = 12345) -> dict[str, float]:
         """The error a perfect model shows on data like this: the fitted model scored on its own noisy output.
@@ -441,13 +445,14 @@ class Session:
         ch = {k: np.asarray(v, dtype=float)[idx] for k, v in self.rec.channels.items()}
         for k, x in pred.items():
             ch[k] = x + rng.normal(0.0, self.m.sigma[k], x.size)
+        sim = fitted.problem.sim(fitted.values)
         jitter = self.timing_noise(fitted)
         if jitter > 0:
             early = rng.normal(0.0, jitter, idx.size)
-            rates = self.rd.output_rates(fitted.problem.sim(fitted.values), states, float(self.m.t[1] - self.m.t[0]))
+            rates = self.rd.output_rates(sim, states, float(self.m.t[1] - self.m.t[0]))
             for k in pred:
                 ch[k] = ch[k] + rates[k] * early
-        ch.update(self.rd.synthetic_extras(fitted.problem.sim(fitted.values), states, aux, ch, rng))
+        ch.update(self.rd.synthetic_extras(sim, states, aux, ch, rng))
         dc = self.rd.drive_channel
         if fitted.problem.drive == "measured" and dc in ch:
             # a model driven by the measured speed also carries that measurement's error: the synthetic drive
@@ -463,7 +468,6 @@ class Session:
             # the forward run heats the contact by its own thermal model, which a real contact need not follow:
             # the synthetic thermocouple reads the run's temperature (plus the real one's noise, shifted), so
             # its windows start from the temperature their data were made with
-            sim = fitted.problem.sim(fitted.values)
             noise = np.asarray(self.rec.channels["temp"], dtype=float)[idx] - self.m.temp[idx]
             ch["temp"] = states[:, sim.n_mech + TAIL.TEMP] + np.roll(noise, int(rng.integers(1, max(noise.size, 2))))
         syn = Recording(self.rec.rig, self.m.t[idx], ch, self.rec.units, {}, {})
