@@ -1,7 +1,7 @@
 """Belt/drum speed programmes: the seed ramp (paper 001 eq. 11) and ramp files.
 
-A ramp file is TOML with segments (hold, linear, exponential, seed) or a CSV
-table ``t,vb``. Every programme becomes a piecewise-linear table (t, v) that
+A ramp file is TOML with segments (hold, linear, exponential, seed, and the rate-and-state protocols
+velocity-steps and slide-hold-slide) or a CSV table ``t,vb``. Every programme becomes a piecewise-linear table (t, v) that
 the simulator, and later the daemon's set-point generator, evaluate. Speeds
 are surface speeds in m/s (drum: circumferential speed at the friction radius).
 """
@@ -23,12 +23,18 @@ EXP_POINTS = 200  # samples per exponential segment in the table
 
 class Segment(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    kind: Literal["hold", "linear", "exponential", "seed"]
+    kind: Literal["hold", "linear", "exponential", "seed", "velocity-steps", "slide-hold-slide"]
     duration_s: float | None = Field(None, gt=0.0)
     to_m_per_s: float | None = Field(None, ge=0.0, description="end speed (linear, exponential)")
     tau_s: float | None = Field(None, gt=0.0, description="time constant (exponential)")
     V0_m_per_s: float | None = Field(None, ge=0.0, description="seed: initial speed")
     Tmax_s: float | None = Field(None, gt=0.0, description="seed: time to standstill")
+    speeds_m_per_s: list[float] | None = Field(None, min_length=1, description="velocity-steps: the plateaus' speeds")
+    slip_m: float | None = Field(None, gt=0.0, description="velocity-steps, slide-hold-slide: load-point travel of "
+                                                          "each sliding plateau")
+    holds_s: list[float] | None = Field(None, min_length=1, description="slide-hold-slide: the hold times, in order")
+    rise_s: float = Field(0.01, gt=0.0, description="velocity-steps, slide-hold-slide: duration of each change of "
+                                                    "speed (the rig's acceleration limit applies to it)")
 
 
 class Ramp(BaseModel):
@@ -87,6 +93,8 @@ def ramp_table(ramp: Ramp, source: str = "ramp") -> tuple[np.ndarray, np.ndarray
                 vs.append(target + (v_start - target) * math.exp(-tt / tau))
             t += dur
             v = vs[-1]
+        elif seg.kind in ("velocity-steps", "slide-hold-slide"):
+            t, v = _protocol(seg, i, t, v, ts, vs, source)
         else:  # seed
             v0 = _need(seg, i, "V0_m_per_s", source)
             tmax = _need(seg, i, "Tmax_s", source)
@@ -101,6 +109,42 @@ def ramp_table(ramp: Ramp, source: str = "ramp") -> tuple[np.ndarray, np.ndarray
             ts.append(t)
             vs.append(v)
     return np.asarray(ts, dtype=float), np.asarray(vs, dtype=float)
+
+
+def _protocol(seg: Segment, i: int, t: float, v: float, ts: list[float], vs: list[float],
+              source: str) -> tuple[float, float]:
+    """A rate-and-state protocol appended to the table: velocity steps (a plateau of slip_m at each speed) or
+    slide-hold-slide (slide slip_m at to_m_per_s, then for each hold: stop, hold, slide slip_m again); each
+    change of speed takes rise_s. Returns the end time and speed."""
+    slip = _need(seg, i, "slip_m", source)
+
+    def go(speed: float, plateau_s: float) -> None:
+        nonlocal t, v
+        if abs(speed - v) > 1e-15:
+            t += seg.rise_s
+            ts.append(t)
+            vs.append(speed)
+            v = speed
+        t += plateau_s
+        ts.append(t)
+        vs.append(v)
+
+    if seg.kind == "velocity-steps":
+        for k, speed in enumerate(_need(seg, i, "speeds_m_per_s", source)):
+            if speed <= 0.0:
+                raise InputError(source, f"segment[{i}].speeds_m_per_s[{k}]", f"{speed}: a plateau must slide (> 0)")
+            go(speed, slip / speed)
+        return t, v
+    speed = _need(seg, i, "to_m_per_s", source)
+    if speed <= 0.0:
+        raise InputError(source, f"segment[{i}].to_m_per_s", f"{speed}: the slides need a speed > 0")
+    go(speed, slip / speed)
+    for k, hold in enumerate(_need(seg, i, "holds_s", source)):
+        if hold <= 0.0:
+            raise InputError(source, f"segment[{i}].holds_s[{k}]", f"{hold}: a hold lasts > 0 s")
+        go(0.0, hold)
+        go(speed, slip / speed)
+    return t, v
 
 
 def check_limits(rt: np.ndarray, rv: np.ndarray, max_speed: float, max_accel: float, source: str) -> None:

@@ -414,3 +414,39 @@ def test_csv_ramp_over_the_brake_speed_limit(tmp_path):
     with pytest.raises(InputError) as info:
         check_limits(rt, rv, lim.max_speed_m_per_s, lim.max_accel_m_per_s2, str(path))
     expect_error(info.value, str(path), "speed", "exceeds the rig limit 0.5")
+
+
+# ---------------------------------------------------------------- rate-and-state protocols (issue 27)
+
+DOCS_RAMPS = Path(__file__).resolve().parent.parent / "docs" / "ramps"
+
+
+def test_velocity_steps_hold_each_speed_for_its_slip():
+    _, rt, rv = load_ramp(DOCS_RAMPS / "velocity-steps.toml")
+    travel = np.concatenate([[0.0], np.cumsum(0.5 * (rv[1:] + rv[:-1]) * np.diff(rt))])
+    flat = np.flatnonzero(np.diff(rt) > 0.05)  # the plateaus (changes take 10 ms)
+    assert [rv[i] for i in flat] == [1e-5, 1e-4, 1e-5, 3e-5, 3e-6]
+    np.testing.assert_allclose([travel[i + 1] - travel[i] for i in flat], 3e-4, rtol=1e-9)
+    np.testing.assert_allclose(np.diff(rt)[np.diff(rt) < 0.05], 0.01, rtol=1e-9)
+
+
+def test_slide_hold_slide_stops_for_each_hold_and_slides_between():
+    _, rt, rv = load_ramp(DOCS_RAMPS / "slide-hold-slide.toml")
+    holds = [rt[i + 1] - rt[i] for i in range(rt.size - 1) if rv[i] == 0.0 and rv[i + 1] == 0.0]
+    np.testing.assert_allclose(holds, [3, 10, 30, 100], rtol=1e-12)
+    slides = [rt[i + 1] - rt[i] for i in range(rt.size - 1) if rv[i] == 1e-5 and rv[i + 1] == 1e-5]
+    np.testing.assert_allclose(slides, 20.0, rtol=1e-12)  # 200 um at 10 um/s, five times
+    assert len(slides) == 5
+    check_limits(rt, rv, 1.0, 1.0, "shs")  # 1e-5 m/s in 10 ms: 1e-3 m/s^2
+
+
+@pytest.mark.parametrize("body, field", [
+    ('kind = "velocity-steps"\nslip_m = 1e-4', "segment[0].speeds_m_per_s"),
+    ('kind = "velocity-steps"\nspeeds_m_per_s = [1e-5, 0.0]\nslip_m = 1e-4', "segment[0].speeds_m_per_s[1]"),
+    ('kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nslip_m = 1e-4\nholds_s = [3, -1]', "segment[0].holds_s[1]"),
+    ('kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nholds_s = [3]', "segment[0].slip_m"),
+])
+def test_a_bad_protocol_is_one_error_naming_its_field(tmp_path, body, field):
+    path = write(tmp_path, "bad.toml", f"start_m_per_s = 1e-5\n[[segment]]\n{body}\n")
+    err = load_bad(path)
+    assert err.field == field, str(err)
