@@ -154,3 +154,16 @@ def test_a_rig_with_two_masses_is_one_clear_error(tmp_path, capsys):
     assert daq(["analyse", "rsf", str(h5), "--rig", str(rig2)]) != 0
     err = capsys.readouterr().err
     assert "mechanics.n_masses" in err and "Traceback" not in err
+
+
+def test_the_batch_benchmark_reduces_every_step_and_recovers_the_truth(capsys):
+    """`daq bench rsf --steps 24`: every step fitted, the aging law named, the medians at the truth; the figures
+    (ms a step, ratio to one forward simulation) printed. The speed itself is the benchmark's, not asserted."""
+    assert daq(["bench", "rsf", "--steps", "24", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["steps"] == 24 and r["fits_ok"] == 24 and r["aging_named"] == 24
+    assert r["ratio_to_baseline"] > 1.0 and r["ms_per_step"] > 0.0
+    for p in ("a", "b", "dc"):
+        assert r["median_estimates"][p] == pytest.approx(r["truth"][p], rel=0.02)
+    assert daq(["bench", "sim", "--steps", "5"]) != 0
+    assert "--steps" in capsys.readouterr().err

@@ -20,6 +20,7 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "bus": ("daq.bench.bus", "bench_bus", "format_bus"),
     "diagnose": ("daq.bench.diagnose", "bench_diagnose", "format_diagnose"),
     "web": ("daq.bench.web", "bench_web", "format_web"),
+    "rsf": ("daq.bench.rsf", "bench_rsf", "format_rsf"),
 }
 
 

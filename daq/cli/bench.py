@@ -21,6 +21,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.name != "diagnose":
             raise InputError("bench", "--rig", f"only `daq bench diagnose` takes a rig (not {args.name!r})")
         options = {"rig": args.rig, "progress": lambda msg: print(msg, file=sys.stderr, flush=True)}
+    if args.steps is not None:
+        if args.name != "rsf":
+            raise InputError("bench", "--steps", f"only `daq bench rsf` takes a number of steps (not {args.name!r})")
+        if args.steps < 1:
+            raise InputError("bench", "--steps", f"{args.steps}: at least 1")
+        options["steps"] = args.steps
+    if args.name == "rsf":
+        options["progress"] = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)
     result, report = run_bench(args.name, **options)
     if args.json:
         print_json(result)
@@ -34,4 +42,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     bench.add_argument("name")
     bench.add_argument("--json", action="store_true")
     bench.add_argument("--rig", help="diagnose: brake-2dof (default) or belt-ndof (issue 14's long record)")
+    bench.add_argument("--steps", type=int, help="rsf: velocity steps in the batch (default 10 000)")
     bench.set_defaults(func=cmd_bench)

@@ -11,8 +11,10 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import os
 from pathlib import Path
 
+from daq.errors import InputError
 from daq.io.files import atomic_path
 from daq.io.jsonout import print_json
 
@@ -39,8 +41,14 @@ def cmd_rsf(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba load when the command runs (start-up time of daq --help)
     from daq.analysis.rsf.analysis import analyse_rsf, table_rows
 
+    if args.workers is not None and args.workers < 1:
+        raise InputError("--workers", "workers", f"{args.workers}: at least 1")
     laws = tuple(args.law) if args.law else ("aging", "slip")
+    from daq.analysis.rsf.figures import MAX_FILES_DRAWN
+
     res, curves = analyse_rsf(args.data, rig=args.rig, laws=laws, fixed_stiffness=args.fixed_stiffness,
+                              workers=args.workers or os.cpu_count() or 1,
+                              keep_curves=MAX_FILES_DRAWN if args.report else 0,
                               on_file=lambda k, n, what: say(f"file {k}/{n}: {what}"))
     if args.report:
         from daq.analysis.rsf.figures import figures
@@ -83,6 +91,7 @@ def register(analyse: argparse._SubParsersAction) -> None:
                    help="state law to fit (repeat for both; default both, and which one each event favours)")
     p.add_argument("--fixed-stiffness", action="store_true",
                    help="take the machine stiffness from the rig file (k / N) instead of fitting it")
+    p.add_argument("--workers", type=int, help="processes sharing the files (default: this machine's cores)")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
-    p.add_argument("--report", help="folder for rsf.json, rsf.csv and the figures")
+    p.add_argument("--report", help="folder for rsf.json, rsf.csv and the figures (the first 12 files drawn)")
     p.set_defaults(func=cmd_rsf)

@@ -16,8 +16,10 @@ integrator of daq/physics/rsf.py; this module only reads, loops and collects.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -160,7 +162,7 @@ def analyse_file(path: str | Path, *, rig: str | None, laws: tuple[str, ...], fi
         after = curve[ev.i_restart - ev.i_start:]
         down = ev.kind == "step" and ev.v2 < ev.v1
         peak = float((after.min() if down else after.max()) - best.mu0.value)
-        steady = float(best.a_minus_b.value * math.log(ev.v2 / ev.v1))
+        steady = float(best.a_minus_b.value * math.log(ev.v2 / ev.v1)) + 0.0  # a hold's ln(1): 0, not -0
         rows.append(RsfEvent(data=str(path), index=i, kind=ev.kind, t_event_s=float(t[ev.i_event]),
                              load_point_m=float(travel[ev.i_event]), v1_m_per_s=ev.v1, v2_m_per_s=ev.v2,
                              hold_s=ev.hold_s, peak_change=peak, steady_change=steady, fits=fits, law=verdict,
@@ -174,22 +176,39 @@ def analyse_file(path: str | Path, *, rig: str | None, laws: tuple[str, ...], fi
                     k_rig_per_m=k_rig, events=rows, healing=heal), curves)
 
 
+def _analyse_one(job: tuple) -> tuple[RsfFile, Curves | None]:
+    """One file in a worker process (a plain module function: what a process pool can send)."""
+    path, rig, laws, fixed_stiffness, keep_curves = job
+    f, c = analyse_file(path, rig=rig, laws=laws, fixed_stiffness=fixed_stiffness)
+    return f, (c if keep_curves else None)
+
+
 def analyse_rsf(paths: list[str | Path], *, rig: str | None = None, laws: tuple[str, ...] = LAW_NAMES,
-                fixed_stiffness: bool = False,
+                fixed_stiffness: bool = False, workers: int = 1, keep_curves: int = 1_000_000,
                 on_file: Callable[[int, int, str], None] | None = None) -> tuple[RsfResult, list[Curves]]:
-    """Every event of every recording; ``on_file(k, n, name)`` reports progress."""
+    """Every event of every recording; ``on_file(k, n, name)`` reports progress. With ``workers`` > 1 the files
+    are shared among that many processes (results in the files' order); the curves the figures draw are kept
+    for the first ``keep_curves`` files only (a batch of thousands would ship every sample back)."""
     for law in laws:
         if law not in LAW_NAMES:
             raise InputError("--law", "law", f"'{law}': one of {', '.join(LAW_NAMES)}")
     t0 = time.perf_counter()
-    files: list[RsfFile] = []
-    curves: list[Curves] = []
-    for k, p in enumerate(paths):
-        f, c = analyse_file(p, rig=rig, laws=laws, fixed_stiffness=fixed_stiffness)
-        files.append(f)
-        curves.append(c)
-        if on_file:
-            on_file(k + 1, len(paths), f"{Path(p).name}: {len(f.events)} events")
+    jobs = [(p, rig, laws, fixed_stiffness, k < keep_curves) for k, p in enumerate(paths)]
+    results: list[tuple[RsfFile, Curves | None]] = []
+    if workers > 1 and len(paths) > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            for k, (f, c) in enumerate(pool.map(_analyse_one, jobs)):
+                results.append((f, c))
+                if on_file:
+                    on_file(k + 1, len(paths), f"{Path(f.data).name}: {len(f.events)} events")
+    else:
+        for k, job in enumerate(jobs):
+            f, c = _analyse_one(job)
+            results.append((f, c))
+            if on_file:
+                on_file(k + 1, len(paths), f"{Path(f.data).name}: {len(f.events)} events")
+    files = [f for f, _ in results]
+    curves = [c for _, c in results if c is not None]
     dt = time.perf_counter() - t0
     n_ev = sum(len(f.events) for f in files)
     return (RsfResult(laws=list(laws), stiffness="fixed" if fixed_stiffness else "fitted", files=files,

@@ -27,12 +27,14 @@ def record_figure(f: RsfFile, c: Curves, path: Path) -> Path:
         fit = ev.fits.get(ev.law) or min(ev.fits.values(), key=lambda q: q.rss)
         ax.plot(x_um[sl], curve, lw=1.4, label=None)
         ar.plot(x_um[sl], c.mu[sl] - curve, lw=0.5)
-        label = (f"{ev.kind} {1e6 * ev.v1_m_per_s:.3g}->{1e6 * ev.v2_m_per_s:.3g} um/s"
-                 + (f", hold {ev.hold_s:.3g} s" if ev.kind == "hold" else "")
-                 + f"\n{fit.law}: a={fit.a.value:.4f} b={fit.b.value:.4f} Dc={1e6 * fit.Dc_m.value:.3g} um"
-                 + f"\n{ev.law}")
-        i = sl.stop - 1
-        ax.annotate(label, (x_um[i], curve[-1]), fontsize=6.5, ha="right", va="bottom")
+        label = ((f"hold {ev.hold_s:.3g} s" if ev.kind == "hold"
+                  else f"{1e6 * ev.v1_m_per_s:.3g}->{1e6 * ev.v2_m_per_s:.3g} um/s")
+                 + f"\na={fit.a.value:.4f} b={fit.b.value:.4f}\nDc={1e6 * fit.Dc_m.value:.3g} um ({ev.law})")
+        up = not (ev.kind == "step" and ev.v2_m_per_s < ev.v1_m_per_s)
+        i = int(np.argmax(curve) if up else np.argmin(curve))  # at the event's peak (a step down: its trough)
+        ax.annotate(label, (x_um[sl][i], curve[i]), xytext=(4, 4 if up else -4), textcoords="offset points",
+                    fontsize=6.5, ha="left", va="bottom" if up else "top")
+    ax.margins(y=0.18)
     ax.set_ylabel("friction mu")
     ax.set_title(f"{Path(f.data).name}: friction against load-point displacement, each event's fit "
                  "(the law it favours)")
