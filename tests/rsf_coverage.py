@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from refsim.rsf import RsfSlider, record, slide_hold_slide, velocity_steps  # noqa: E402
 
 from daq.analysis.rsf.analysis import reduce_event  # noqa: E402
-from daq.analysis.rsf.programme import events, load_point_travel, plateaus, programme_table  # noqa: E402
+from daq.estimation.rsf_programme import events, load_point_travel, plateaus, programme_table  # noqa: E402
 
 NOISE = 2e-4  # friction units: a press's load cell at ~1/100 of a's effect per e-fold
 TRUTH = RsfSlider(a=0.010, b=0.014, dc=20e-6, mu0=0.6, v0=10e-6, k=3000.0, n=1.0, m=0.01)

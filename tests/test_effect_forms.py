@@ -22,7 +22,7 @@ MAIN = {"brake-2dof": "true_x1", "drum-pendulum": "true_phi", "belt-ndof": "true
 FORMS = [(rig, name, form or None) for name, spec in CATALOG.items() for rig in spec.rigs
          for form in spec.form_names() if spec.form_applies(rig, form or None) and spec.params_for(rig, form or None)]
 # a secondary parameter (a time constant, a reference) at a working value, so the strength acts
-SECONDARY = {"tau": 0.3, "q0": 2.0, "wavelength": 0.9, "ref": 22.0}
+SECONDARY = {"tau": 0.3, "q0": 2.0, "wavelength": 0.9, "ref": 22.0, "dc": 1e-4}
 
 
 def _run(rig: str, name: str, form: str | None, values: dict[str, float]):

@@ -18,6 +18,8 @@ import numpy as np
 
 from daq.config import RigConfig
 from daq.errors import InputError
+from daq.estimation.rsf_fit import fit_law, start_values
+from daq.estimation.rsf_programme import events, load_point_travel, plateaus, programme_table
 from daq.io.interchange import Recording
 from daq.io.loading import MODEL_CHANNELS
 from daq.physics import beltndof, brake2dof, drum
@@ -54,7 +56,7 @@ class Measured:
     command_source: str
     temp: np.ndarray | None
     context: dict[str, np.ndarray] = field(default_factory=dict)  # quantities residuals may correlate with
-    aging: dict[float, np.ndarray] = field(default_factory=dict)  # Dieterich's state along the data, per Dc
+    aging: dict[object, np.ndarray] = field(default_factory=dict)  # the contact's state along the data, per Dc (law)
     v_rel: np.ndarray | None = None  # data-derived relative sliding speed (for regimes)
     d_abs_v_rel: np.ndarray | None = None
     v_stick: float | None = None  # |v_rel| below this is stuck in these data (None: the rig config's v_stick)
@@ -189,6 +191,11 @@ class RigData(ABC):
         from besides the model file's values; empty where the rig has none (the config's law is the start)."""
         return {}
 
+    def effect_guess(self, m: Measured, name: str, form: str | None, v_ref: float) -> dict[str, float]:
+        """A start for an effect's parameters (and the law levels they shift) read from the data by a reduction of
+        its own, or empty: the catalog's generic start is then the only one."""
+        return {}
+
     def before_window(self, sim: SimRig, m: Measured, i: int, s0: np.ndarray) -> None:
         """Set whatever the simulator keeps besides the state vector for a run from ``s0`` at sample i (belt-ndof:
         each mass's stick/slip mode and stick clock; ``s0`` may be corrected in place). Smooth rigs keep nothing."""
@@ -274,6 +281,56 @@ def _dieterich_tail(v_rel, dt, dc, out):
         else:
             ss = dc / v
             th = ss + (th - ss) * math.exp(-k)
+
+
+@kernel
+def _rsf_state_tail(v, v_start, dt, dc, v_ref, law, out):
+    """Rate-and-state's state psi = ln(v_ref theta / Dc) along the data's slip speed v (>= 0), each sample solved
+    exactly with v held (aging: theta relaxes to Dc/v, or grows by dt at rest; slip: psi relaxes to ln(v_ref/v),
+    held at rest), from steady state at v_start."""
+    v0 = max(v_start, v_ref)
+    psi = math.log(v_ref / v0)
+    for i in range(v.size):
+        out[i] = psi
+        vi = v[i]
+        k = vi * dt / dc
+        if law == 0:  # aging, in theta
+            th = dc / v_ref * math.exp(psi)
+            if k < 1e-9:
+                th += dt
+            else:
+                ss = dc / vi
+                th = ss + (th - ss) * math.exp(-k)
+            psi = math.log(v_ref * th / dc)
+        elif k > 0.0:
+            ss = math.log(v_ref / vi)
+            psi = ss + (psi - ss) * math.exp(-k)
+
+
+RSF_GUESS_EVENTS = 8  # events the rate-and-state start reads (the first; each is a fit of ~10-50 ms)
+RSF_SPEED_S = 0.05  # the slip speed the state reads: the data's v_rel averaged over this long (a slip keeps its length)
+
+
+def rsf_state_at(sim: SimRig, m: Measured, i: int) -> float:
+    """Rate-and-state's contact state at sample i for this model (its law, Dc and v_ref): integrated along the
+    data's slip speed (cached per parameter set, as the aging clock is). Why not steady state at the drive's speed:
+    a window that starts within a few Dc of a velocity step starts with the state of the speed before it."""
+    e = sim.e
+    law = 1 if e[E.RS_B_SLIP] != 0.0 else 0
+    key = ("rsf", law, float(e[E.RS_DC]), float(e[E.RS_VREF]))
+    psi = m.aging.get(key)
+    if psi is None:
+        if len(m.aging) > 64:
+            m.aging.clear()
+        w = max(1, int(round(RSF_SPEED_S * m.rate)))
+        padded = np.pad(np.asarray(m.v_rel, dtype=float), (w // 2, w - 1 - w // 2), mode="edge")
+        v = np.abs(np.convolve(padded, np.ones(w) / w, mode="valid"))
+        psi = np.empty(m.n)
+        v_start = abs(float(np.median(m.v_rel[:max(1, int(m.rate))])))  # the first second's (v_rel is noisy)
+        _rsf_state_tail(np.ascontiguousarray(v, dtype=float), v_start, 1.0 / m.rate, float(e[E.RS_DC]), float(e[E.RS_VREF]),
+                        law, psi)
+        m.aging[key] = psi
+    return float(psi[i])
 
 
 def clock_at(sim: SimRig, m: Measured, i: int) -> float:
@@ -423,9 +480,18 @@ def is_programme(x: np.ndarray) -> bool:
     a 20.51 um floor, belt-speed claimed; at the floor with the smoothed measurement). A programme's updates are
     few (steps) or lie on lines (ramps): no noise left, or too few to tell."""
     x = np.asarray(x, dtype=float)
-    updates = x[np.r_[True, np.diff(x) != 0.0]]
+    change = np.r_[True, np.diff(x) != 0.0]
+    # steps: nearly every sample on a plateau held exactly for >= PROGRAMME_RUN samples (at 100 Hz a 10 ms change
+    # between nine plateaus left 17 updates whose differences read as noise: the drive became a cubic fit)
+    runs = np.diff(np.r_[np.flatnonzero(change), x.size])
+    if x.size and runs[runs >= PROGRAMME_RUN].sum() >= 0.9 * x.size:
+        return True
+    updates = x[change]
     s = noise_sigma(updates)
     return not s > 1e-9 * float(np.max(np.abs(x)) if x.size else 0.0)  # (nan: under 11 updates)
+
+
+PROGRAMME_RUN = 100  # samples: a held instrument reading repeats for ~10 (a 100 Hz tachometer at 1 kHz)
 
 
 def stuck_by_hysteresis(v_rel: np.ndarray, v_lo: float, v_hi: float) -> np.ndarray:
@@ -567,6 +633,37 @@ class BeltData(RigData):
         f_s = float(np.median(cyc["peak"])) * k / f0
         return {"friction.f_s0": f_s, "friction.f_k0": f_s - float(np.median(cyc["drop"])) * k / (2.0 * f0)}
 
+    def effect_guess(self, m, name, form, v_ref):
+        """rate-and-state from the record's own velocity steps and holds, reduced as `daq analyse rsf` does (the
+        quasi-static slider, each event on its own window; decision 31): the medians of a, b and Dc by the form's
+        law, and the law's level that puts the steady friction where the events found it. Why: from a = b = 0 (or
+        the generic a = 0.01) the fit of a velocity-stepping record stayed put or fell into Dc = 0.6 mm, 1.55 um
+        against the seed model's 1.31 um; from the reduction's values it reached the floor. A record without steps
+        or holds (one constant drive) gives no start."""
+        if name != "rate-and-state" or self.n != 1:
+            return {}
+        mech = self.cfg.mechanics
+        t = m.t
+        mu = mech.stiffness_N_per_m * np.asarray(m.outputs["x1"]) / mech.normal_force_N
+        plats = plateaus(m.drive_command)
+        evs = events(t, plats)[:RSF_GUESS_EVENTS]
+        if not evs:
+            return {}
+        rt, rv = programme_table(t, plats)
+        travel = load_point_travel(t, rt, rv)
+        law = "slip" if form == "slip" else "aging"
+        got = []
+        for ev in evs:
+            sl = slice(ev.i_start, ev.i_end + 1)
+            f = fit_law(ev, t[sl], mu[sl], rt, rv, law, start_values(ev, t[sl], mu[sl], travel[sl], None))
+            if f.ok:
+                got.append((f.a.value, f.b.value, f.Dc_m.value, f.mu0.value - f.a_minus_b.value * math.log(ev.v1 / v_ref)))
+        if not got:
+            return {}
+        a, b, dc, level = (float(np.median(col)) for col in zip(*got))
+        return {"effects.rate-and-state.a": a, "effects.rate-and-state.b": b, "effects.rate-and-state.dc": dc,
+                "friction.f_k0": level, "friction.f_s0": level}
+
     def predict(self, sim, states):
         return {f"x{i + 1}": states[..., i] for i in range(self.n)}
 
@@ -583,6 +680,8 @@ class BeltData(RigData):
         s[tail + TAIL.TEMP] = m.temp[i] if m.temp is not None else self.cfg.contact.t_ambient_C
         s[tail + TAIL.VLAG] = m.drive_measured[i]
         s[tail + TAIL.POS] = c["travel"][i]
+        if sim.e[E.RS_DC] > 0.0:
+            s[tail + TAIL.PSI] = rsf_state_at(sim, m, i)
         return s
 
     def before_window(self, sim, m, i, s0):
@@ -595,7 +694,7 @@ class BeltData(RigData):
         for k in range(n):
             stuck_s = float(c[f"x{k + 1}_stuck_s"][i])
             if stuck_s > 0.0:
-                level = beltndof._static_limit(stuck_s, rate_need, p, e)
+                level = beltndof._static_limit(stuck_s, rate_need, p, e) + beltndof.state_term(s0, 2 * n, e)
                 need = self._need_stuck(p, e, s0, k, vb)
                 if abs(need) <= p[beltndof.P.F0] * level:
                     hs[beltndof.H.MODE, k] = beltndof.STICK

@@ -556,6 +556,12 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
                          + ", ".join(f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f})"
                                      for m in v.ties)
                          + f"; adding '{v.cand.label}' is the better guess, a run that separates them the way to know.")
+        for v in d.verdicts:  # a phenomenon named whose form the data cannot tell (decision 32: aging or slip law)
+            open_forms = [m for m in v.forms if not m.decided]
+            if open_forms:
+                parts.append(f"Its form is undecided: '{v.cand.label}' scores " + ", ".join(
+                    f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f})" for m in open_forms)
+                    + "; the record does not tell these forms apart.")
         base_free = set(d.base.model.free_names())
         vals = ", ".join(f"{k.split('.', 1)[-1]} = {f.values[k]:.4g}" for k in f.model.free_names() if k not in base_free)
         cmds = "; ".join(f"daq model add MODEL {add_command(c)}" for c in added)

@@ -56,16 +56,17 @@ def evaluate(z: np.ndarray, loss: str = HUBER) -> tuple[np.ndarray, np.ndarray]:
     |z| <= t, t |z| - 0.5 t^2 beyond, t = HUBER_C x scale(z); weights min(1, t / |z|), so that the weighted
     squares 0.5 w z^2 equal the loss where w = 1 and lie above it elsewhere with the same slope (a majoriser).
     """
-    if loss == SQUARES:
-        return 0.5 * np.sum(z * z, axis=(1, 2)), np.ones_like(z)
-    if loss != HUBER:
+    if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}: one of {', '.join(LOSSES)}")
-    a = np.abs(z)
-    t = HUBER_C * scale(z)
-    inside = a <= t
-    rho = np.where(inside, 0.5 * z * z, t * a - 0.5 * t * t)
-    w = np.where(inside, 1.0, t / np.maximum(a, 1e-300))
-    return np.sum(rho, axis=(1, 2)), w
+    with np.errstate(over="ignore", invalid="ignore"):  # a trial far off (a diverged window) costs inf, silently
+        if loss == SQUARES:
+            return 0.5 * np.sum(z * z, axis=(1, 2)), np.ones_like(z)
+        a = np.abs(z)
+        t = HUBER_C * scale(z)
+        inside = a <= t
+        rho = np.where(inside, 0.5 * z * z, t * a - 0.5 * t * t)
+        w = np.where(inside, 1.0, t / np.maximum(a, 1e-300))
+        return np.sum(rho, axis=(1, 2)), w
 
 
 GAUSS_TAIL = 0.0027  # share of Gaussian noise beyond 3 of its standard deviations (2 (1 - Phi(3)))

@@ -129,6 +129,7 @@ class Session:
         self.win: Windows = make_windows(self.m, self.m.stick_threshold(cfg), window_s, max_windows=max_windows)
         self.law_guess: dict[str, float] = self.rd.law_guess(self.m)  # a start from the data (reported in the JSON)
         self._own_fits: dict[tuple, Fitted] = {}  # Session.fit without ``warm``, by fit_key and the fit's settings
+        self._effect_guesses: dict[tuple, dict[str, float]] = {}  # RigData.effect_guess, per (effect, form, v_ref)
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
@@ -240,6 +241,9 @@ class Session:
                 off = {full: neutral for _, full, neutral in _free_strengths(model, file_values)}
                 if off:
                     starts.append(({**file_values, **off, **guess}, None))
+        from_data = self.effect_starts(model, file_values, bounds)
+        if from_data and warm is None:
+            starts.append(({**file_values, **from_data}, None))
         nested, new = None, set()
         if warm is not None:
             new = self._new_keys(warm.model, model)
@@ -258,6 +262,8 @@ class Session:
                     starts.append(({**values, **strengths}, warm.fit.start_values))
                 if cold_values is not None:
                     starts.append(({**cold_values, **strengths}, None))
+            if from_data:  # with the data's own window starts: the warm fit's were fitted to a model without it
+                starts.append(({**values, **from_data}, None))
         # the same values twice (a model file that holds the fitted values of the model it extends): keep the
         # start with the warm start values, the later one
         unique: dict[tuple, tuple] = {}
@@ -298,6 +304,22 @@ class Session:
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
         return Fitted(fitted_model, res.values, res, held, pr, ms_held,
                       pr.window_errors(res.values, fw, res.start_values))
+
+    def effect_starts(self, model: Model, values: dict[str, float], bounds: dict) -> dict[str, float]:
+        """Starts read from the data (RigData.effect_guess) for the model's effects whose strength sits at neutral
+        (just added), restricted to the free parameters and clipped to their bounds."""
+        out: dict[str, float] = {}
+        fresh = set(neutral_strengths(model))
+        for name, eff in model.effects.items():
+            key = strength_key(model.rig, name, eff.form) if name in CATALOG and eff.path is None else None
+            if key is None or f"effects.{name}.{key}" not in fresh:
+                continue
+            v_ref = values.get(f"effects.{name}.v_ref", 0.0)
+            cache = (name, eff.form, v_ref)
+            if cache not in self._effect_guesses:
+                self._effect_guesses[cache] = self.rd.effect_guess(self.m, name, eff.form, v_ref)
+            out.update({k: float(np.clip(v, *bounds[k])) for k, v in self._effect_guesses[cache].items() if k in bounds})
+        return out
 
     def held_out(self, pr: Problem, values: dict[str, float]) -> tuple[ShootingFit, dict[str, np.ndarray]]:
         """A model at fixed ``values`` on the held-out windows: each window's start values fitted (parameters

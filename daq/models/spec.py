@@ -299,13 +299,15 @@ START: dict[str, dict[str, float]] = {
     "accel-sign/body": {"a0": 1.0},
     "force-rate": {"q0": 1.0},
     "belt-speed/lag-ripple": {"ripple": 0.0},
+    "rate-and-state": {"dc": 1e-4},  # a and b start at 0: the state there but without effect (decision 32)
+    "rate-and-state/slip": {"dc": 1e-4},
 }
 # A second start for the strength (generic magnitudes, deliberately not the simulator's hidden ones):
 # where an effect's error surface is flat at neutral (a symmetric term), the fit starts here too.
 STRENGTH_START: dict[str, float] = {
     "accel-sign": 0.05, "accel-sign/body": 0.05, "stick-time": 0.2, "stick-time/log": 0.1, "force-rate": 0.1,
     "bearing-friction": 0.001, "temperature": -0.005, "temperature/arrhenius": 300.0, "velocity-strengthening": 0.1,
-    "viscous-damping": 0.01, "belt-speed/lag-ripple": 0.1,
+    "viscous-damping": 0.01, "belt-speed/lag-ripple": 0.1, "rate-and-state": 0.01, "rate-and-state/slip": 0.01,
 }
 FIXED: dict[str, set[str]] = {
     "normal-load": {"weight"},  # structural: the load is followed, or it is not
@@ -314,7 +316,14 @@ FIXED: dict[str, set[str]] = {
     "temperature/arrhenius": {"ref"},
     "force-rate": {"q0"},  # gain ln(1 + q/q0) ~ gain ln q - gain ln q0: q0 trades off against the peak
     "belt-speed/lag-ripple": {"ripple", "wavelength"},  # the lag is fitted; a ripple's wavelength is not found by LM
+    "rate-and-state": {"v_ref"},  # a ln v_ref trades off against f_k0
+    "rate-and-state/slip": {"v_ref"},
 }
+
+
+# A fit's lower bound above the catalog's where the catalog's bound switches the effect's structure off: Dc = 0 is
+# "no contact state" (and RK4 instead of ROS2), which a fit must not step onto.
+FIT_LO: dict[str, dict[str, float]] = {"rate-and-state": {"dc": 1e-7}, "rate-and-state/slip": {"dc": 1e-7}}
 
 
 def form_key(name: str, form: str | None) -> str:
@@ -339,7 +348,7 @@ def effect_params(rig: str, name: str, cfg: RigConfig, form: str | None = None) 
         if ps.key in FIXED.get(key, set()):
             params[ps.key] = Param(value=value)
         else:
-            params[ps.key] = Param(value=value, free=True, lo=ps.lo, hi=ps.hi)
+            params[ps.key] = Param(value=value, free=True, lo=FIT_LO.get(key, {}).get(ps.key, ps.lo), hi=ps.hi)
     return params
 
 

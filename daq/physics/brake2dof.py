@@ -138,6 +138,7 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     ds[N_MECH + TAIL.TEMP] = d_temp
     ds[N_MECH + TAIL.VLAG] = d_lag
     ds[N_MECH + TAIL.POS] = d_pos
+    ds[N_MECH + TAIL.PSI] = 0.0  # rate-and-state is belt-ndof's (one mass)
     aux[AUX.F] = f
     aux[AUX.N] = n
     aux[AUX.MU] = mu

@@ -63,6 +63,12 @@ class E(IntEnum):
     TEMP_ARR = 33  # temperature, Arrhenius-like: mu x exp(theta (1/T - 1/T_ref)), T in kelvin; theta [K]
     AS_BODY_A0 = 34  # accel-sign (body form): acceleration scale of its smooth switch tanh(a/a0) [m/s^2]
     ST_DC = 35  # stick-time (log form): Dieterich's critical slip distance Dc of the aging law [m]; 0 = stick clock
+    # rate-and-state (daq/physics/rsf.py): mu += a asinh(v/(2 v_ref)) + b psi, psi = ln(v_ref theta / Dc)
+    RS_B = 36  # rate-and-state, aging law: the state's effect b [-]
+    RS_B_SLIP = 37  # rate-and-state, slip law: the state's effect b [-] (the law the state evolves by)
+    RS_A = 38  # rate-and-state: the direct effect a [-]
+    RS_DC = 39  # rate-and-state: critical slip distance Dc [m]; 0: the model has no contact state (RK4, not ROS2)
+    RS_VREF = 40  # rate-and-state: reference speed v_ref of the law [m/s] (the direct effect's regularisation)
 
 
 N_E = len(E)
@@ -77,6 +83,7 @@ class TAIL(IntEnum):
     TEMP = 2  # contact temperature [degC]
     VLAG = 3  # drive speed after the drive's lag [m/s]
     POS = 4  # drive travel [m] (drum: drum angle [rad])
+    PSI = 5  # rate-and-state: the contact's state psi = ln(v_ref theta / Dc) [-] (belt-ndof, one mass)
 
 
 N_TAIL = len(TAIL)
@@ -275,6 +282,32 @@ CATALOG: dict[str, EffectSpec] = {
                     _p("ripple", E.VB_RIPPLE, "-", 0.0, 0.0, 0.5, "relative speed ripple"),
                     _p("wavelength", E.VB_WAVELEN, "m", 1.0, 1e-3, 100.0,
                        "ripple period in belt travel (drum: in drum angle, rad)"),
+                )})},
+        ),
+        EffectSpec(
+            name="rate-and-state",
+            meaning="friction follows the slip speed's logarithm at once (a) and a contact state that ages at rest "
+                    "and renews over a slip Dc (b): rate-and-state with Dieterich's aging law",
+            seed="rate-and-state (Dieterich 1979, Ruina 1983)",
+            rigs=("belt-ndof",),
+            stateful=True,
+            params={"belt-ndof": (
+                _p("a", E.RS_A, "-", 0.0, -0.05, 0.2, "the direct effect: mu += a asinh(v / (2 v_ref))"),
+                _p("b", E.RS_B, "-", 0.0, -0.1, 0.3, "the state's effect: mu += b ln(v_ref theta / Dc)"),
+                _p("dc", E.RS_DC, "m", 0.0, 0.0, 1e-2,
+                   "critical slip distance Dc (0: no contact state, the model without the effect)"),
+                _p("v_ref", E.RS_VREF, "m/s", 1e-7, 1e-12, 1e-2, "reference speed: below ~3 v_ref the direct effect flattens (a shifts f_k0 by a ln v_ref)"),
+            )},
+            default_form="aging",
+            forms={"slip": FormSpec(
+                meaning="friction follows the slip speed's logarithm at once (a) and a contact state renewed only "
+                        "by slip (b): rate-and-state with Ruina's slip law (no healing at rest)",
+                params={"belt-ndof": (
+                    _p("a", E.RS_A, "-", 0.0, -0.05, 0.2, "the direct effect: mu += a asinh(v / (2 v_ref))"),
+                    _p("b", E.RS_B_SLIP, "-", 0.0, -0.1, 0.3, "the state's effect: mu += b ln(v_ref theta / Dc)"),
+                    _p("dc", E.RS_DC, "m", 0.0, 0.0, 1e-2,
+                   "critical slip distance Dc (0: no contact state, the model without the effect)"),
+                    _p("v_ref", E.RS_VREF, "m/s", 1e-7, 1e-12, 1e-2, "reference speed: below ~3 v_ref the direct effect flattens (a shifts f_k0 by a ln v_ref)"),
                 )})},
         ),
         EffectSpec(

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from daq.config import BeltRig, BrakeRig, DrumRig, RigConfig
+from daq.errors import InputError
 from daq.physics import beltndof, brake2dof, drum
 from daq.physics.contact import AUX
 from daq.physics.effects import TAIL, E
@@ -189,6 +190,9 @@ class BeltSim(SimRig):
         self.n_mech = 2 * self.n
         self.hybrid = beltndof.new_hybrid(self.n, self.p[beltndof.P.F_S0], 1.0)
         self.n_events = 0
+        if self.n > 1 and self.e[E.RS_DC] > 0.0:
+            raise InputError(cfg.title, "mechanics.n_masses", f"{self.n}: rate-and-state is for one slider "
+                                                              "(its contact state is one variable)")
 
     def params(self) -> np.ndarray:
         m, f = self.cfg.mechanics, self.cfg.friction
@@ -206,6 +210,8 @@ class BeltSim(SimRig):
         s[self.n_mech + TAIL.VLAG] = v_drive
         self.hybrid = beltndof.new_hybrid(self.n, self.p[beltndof.P.F_S0], 1.0 if v_drive >= 0 else -1.0)
         self.tail(s)
+        if v_drive != 0.0 and self.e[E.RS_DC] > 0.0:  # rate-and-state: the state steady at the start's slip speed
+            s[self.n_mech + TAIL.PSI] = math.log(self.e[E.RS_VREF] / abs(v_drive))
         return s
 
     def advance(self, s0, t0, dt, n_sub, n_out, rt, rv) -> Chunk:

@@ -9,8 +9,9 @@ column). The programme is read from ``vb_set`` when the file has it (the command
 What comes out, per event: the peak and steady-state changes of friction (from the better law's fitted curve,
 free of noise), a, b, a - b, Dc and the machine stiffness with standard errors by each state law, and which law
 the event favours (or "undecided"); per recording, the healing rate beta over its holds. Rows for a table
-(CSV/JSON) and the curves for the figures. The numerical core is daq/analysis/rsf/reduction.py over the
-integrator of daq/physics/rsf.py; this module only reads, loops and collects.
+(CSV/JSON) and the curves for the figures. The numerical core is daq/estimation/rsf_fit.py (one event's fit) and
+rsf_programme.py (the events read from the programme) over the integrator of daq/physics/rsf.py; this module only
+reads, loops and collects.
 """
 
 from __future__ import annotations
@@ -28,10 +29,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from daq.config import RigConfig, config_for_recording
 from daq.errors import InputError
+from daq.estimation.rsf_fit import Healing, LawFit, fit_law, friction_curve, healing_rate, law_verdict, start_values
+from daq.estimation.rsf_programme import Event, events, load_point_travel, plateaus, programme_table
 from daq.io.loading import load_data
-
-from .programme import Event, events, load_point_travel, plateaus, programme_table
-from .reduction import Healing, LawFit, _model, fit_law, healing_rate, law_verdict, start_values
 
 RIG = "belt-ndof"
 LAW_NAMES = ("aging", "slip")
@@ -137,7 +137,7 @@ def fitted_curve(fit: LawFit, t: np.ndarray, rt: np.ndarray, rv: np.ndarray, v1:
     """The fitted law's friction at the samples t (the window's)."""
     x = np.array([fit.mu0.value, fit.a.value, fit.b.value, math.log(fit.Dc_m.value), math.log(fit.k_per_m.value),
                   fit.mu_start, fit.psi_start])
-    return _model(x, t[0], t, rt, rv, v1, fit.law)
+    return friction_curve(x, t[0], t, rt, rv, v1, fit.law)
 
 
 def analyse_file(path: str | Path, *, rig: str | None, laws: tuple[str, ...], fixed_stiffness: bool,

@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 
 from daq.physics.rsf import simulate
 
-from .programme import Event
+from .rsf_programme import Event
 
 LAW_MARGIN = 10.0  # Delta RSS / sigma^2 (= 2 ln likelihood ratio) to name one state law over the other
 BIN_FRACTION = 0.01  # bin width / distance from the nearest corner of the programme
@@ -67,7 +67,8 @@ class LawFit(BaseModel):
     message: str = ""
 
 
-def _model(x: np.ndarray, t0: float, t: np.ndarray, rt: np.ndarray, rv: np.ndarray, v1: float, law: str) -> np.ndarray:
+def friction_curve(x: np.ndarray, t0: float, t: np.ndarray, rt: np.ndarray, rv: np.ndarray, v1: float,
+                   law: str) -> np.ndarray:
     """mu at the times t of the slider started at t0 in (mu_s, psi_s)."""
     mu0, a, b, ldc, lk, mu_s, psi_s = x
     mu, _ = simulate(np.concatenate([[t0], t]), rt, rv, mu0=mu0, a=a, b=b, dc=math.exp(ldc), kp=math.exp(lk), v0=v1, law=law, rtol=1e-7,
@@ -149,7 +150,7 @@ def fit_law(ev: Event, t: np.ndarray, mu: np.ndarray, rt: np.ndarray, rv: np.nda
         x = x0.copy()
         x[free] = xf
         try:
-            return weight * (_model(x, t[0], t_bin, rt, rv, ev.v1, law) - mu_bin)
+            return weight * (friction_curve(x, t[0], t_bin, rt, rv, ev.v1, law) - mu_bin)
         except ValueError:
             return failed
 
