@@ -158,6 +158,18 @@ def _p(key: str, slot: E, unit: str, neutral: float, lo: float, hi: float, doc: 
 
 ALL_RIGS = ("belt-ndof", "brake-2dof", "drum-pendulum")
 
+
+def _rate_state_params(b_slot: E) -> tuple[ParamSpec, ...]:
+    """rate-and-state's parameters; the two forms differ only in b's slot (the slot says which law the state follows)."""
+    return (
+        _p("a", E.RS_A, "-", 0.0, -0.05, 0.2, "the direct effect: mu += a asinh(v / (2 v_ref))"),
+        _p("b", b_slot, "-", 0.0, -0.1, 0.3, "the state's effect: mu += b ln(v_ref theta / Dc)"),
+        _p("dc", E.RS_DC, "m", 0.0, 0.0, 1e-2, "critical slip distance Dc (0: no contact state, the model without "
+                                                 "the effect)"),
+        _p("v_ref", E.RS_VREF, "m/s", 1e-7, 1e-12, 1e-2, "reference speed: below ~3 v_ref the direct effect flattens "
+                                                         "(a shifts f_k0 by a ln v_ref)"),
+    )
+
 CATALOG: dict[str, EffectSpec] = {
     s.name: s
     for s in [
@@ -291,24 +303,12 @@ CATALOG: dict[str, EffectSpec] = {
             seed="rate-and-state (Dieterich 1979, Ruina 1983)",
             rigs=("belt-ndof",),
             stateful=True,
-            params={"belt-ndof": (
-                _p("a", E.RS_A, "-", 0.0, -0.05, 0.2, "the direct effect: mu += a asinh(v / (2 v_ref))"),
-                _p("b", E.RS_B, "-", 0.0, -0.1, 0.3, "the state's effect: mu += b ln(v_ref theta / Dc)"),
-                _p("dc", E.RS_DC, "m", 0.0, 0.0, 1e-2,
-                   "critical slip distance Dc (0: no contact state, the model without the effect)"),
-                _p("v_ref", E.RS_VREF, "m/s", 1e-7, 1e-12, 1e-2, "reference speed: below ~3 v_ref the direct effect flattens (a shifts f_k0 by a ln v_ref)"),
-            )},
+            params={"belt-ndof": _rate_state_params(E.RS_B)},
             default_form="aging",
             forms={"slip": FormSpec(
                 meaning="friction follows the slip speed's logarithm at once (a) and a contact state renewed only "
                         "by slip (b): rate-and-state with Ruina's slip law (no healing at rest)",
-                params={"belt-ndof": (
-                    _p("a", E.RS_A, "-", 0.0, -0.05, 0.2, "the direct effect: mu += a asinh(v / (2 v_ref))"),
-                    _p("b", E.RS_B_SLIP, "-", 0.0, -0.1, 0.3, "the state's effect: mu += b ln(v_ref theta / Dc)"),
-                    _p("dc", E.RS_DC, "m", 0.0, 0.0, 1e-2,
-                   "critical slip distance Dc (0: no contact state, the model without the effect)"),
-                    _p("v_ref", E.RS_VREF, "m/s", 1e-7, 1e-12, 1e-2, "reference speed: below ~3 v_ref the direct effect flattens (a shifts f_k0 by a ln v_ref)"),
-                )})},
+                params={"belt-ndof": _rate_state_params(E.RS_B_SLIP)})},
         ),
         EffectSpec(
             name="velocity-strengthening",
