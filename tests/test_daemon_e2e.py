@@ -317,6 +317,12 @@ def test_curve_socket_no_keys_refused_observer_reads_operator_commands(tmp_path)
     try:
         with ControlClient(d.endpoint, timeout_s=1.5) as c, pytest.raises(TimeoutError):
             c.request("stop")  # no keys: the handshake fails, nothing reaches a handler
+        with ControlClient(d.endpoint, timeout_s=1.5) as c:
+            time.sleep(1.0)  # the handshake fails before the first send: the send must not block forever
+            t0 = time.monotonic()
+            with pytest.raises(TimeoutError):
+                c.request("status")
+            assert time.monotonic() - t0 < 5.0
         r = d.ctl("--timeout", "1.5", "status")  # ctl without keys: no answer, exit 1
         assert r.returncode == 1 and "no reply" in r.stderr
         olga = str(keys / "clients" / "olga")

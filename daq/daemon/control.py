@@ -561,6 +561,9 @@ class ControlClient:
         self.ctx = ctx or zmq.Context.instance()
         self.sock = self.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
+        # A DEALER with no attached peer blocks in send (its CURVE handshake refused and the pipe
+        # torn down between reconnects: CI saw `daq ctl status` hang 120 s): the send waits as the reply does.
+        self.sock.setsockopt(zmq.SNDTIMEO, max(1, int(timeout_s * 1000)))
         if client_secret_file is not None:
             public, secret = zmq.auth.load_certificate(str(client_secret_file))
             server_public, _ = zmq.auth.load_certificate(str(server_public_file))
@@ -576,8 +579,11 @@ class ControlClient:
     def request(self, op: str, **args: Any) -> Reply:
         """Send one request and wait for its reply; TimeoutError if none comes (down, or refused by CURVE)."""
         rid = uuid.uuid4().hex
-        self.sock.send_string(json.dumps({"op": op, "args": args, "id": rid}))
         deadline = time.monotonic() + self.timeout_s
+        try:
+            self.sock.send_string(json.dumps({"op": op, "args": args, "id": rid}))
+        except zmq.Again:
+            raise TimeoutError(f"could not send {op!r} within {self.timeout_s} s (no peer)") from None
         while (left := deadline - time.monotonic()) > 0:
             if not self._poller.poll(max(1, int(left * 1000))):
                 continue
