@@ -3,9 +3,10 @@ for, judged through the user's path (`model init` -> `compare` -> `diagnose` -> 
 
 The whole table (every form, two ramps, 1 kHz and 100 Hz, pairs, nulls, off-catalog, stiffness) takes
 about an hour: ``python tests/recovery_table.py``; docs/recovery-table.md holds its last run. Here, at
-100 Hz (the harder rate, and the cheaper one), within the suite's time: two effects at once, both in other
-forms than the catalog's (friction keyed to the body's acceleration through a smooth switch, a second-order
-drive with a rippled belt), a surface waviness no catalog effect describes, and a spring 4 % off its config.
+100 Hz (the harder rate, and the cheaper one), within the suite's time: a surface waviness no catalog effect
+describes, and a spring 4 % off its config. Two effects at once, both in other forms than the catalog's (friction
+keyed to the body's acceleration through a smooth switch, a second-order drive with a rippled belt: PAIR) take
+2.5 minutes, a fifth of the suite: tests/long/test_recovery_pair.py (`make acceptance`).
 
 Each case also asks (issue 25) whether the conclusion is the data's or the machine's: the same record diagnosed
 with what another machine can perturb (every channel scaled by 1 + 1e-12, the fit's starting values moved by
@@ -20,10 +21,10 @@ import json
 import pytest
 from recovery_table import Case, _run, conclusion, perturbed_diagnosis, run_case
 
+PAIR = Case("accel-body+belt-drive", "brake-2dof", ("accel-body:amp=0.12",
+                                                   "belt-drive:tau=0.15,ripple=0.05,wavelength=0.9"),
+            ("accel-sign", "belt-speed"), "A", 100.0, kind="pair")  # 2.5 min: tests/long/test_recovery_pair.py
 CASES = [
-    Case("accel-body+belt-drive", "brake-2dof", ("accel-body:amp=0.12",
-                                                  "belt-drive:tau=0.15,ripple=0.05,wavelength=0.9"),
-         ("accel-sign", "belt-speed"), "A", 100.0, kind="pair"),
     Case("waviness", "brake-2dof", ("waviness:w=0.03,wavelength=0.05",), (), "C", 100.0, kind="off-catalog"),
     Case("stiffness k1 +4 %", "brake-2dof", ("stiffness:k1=0.04",), ("mechanics.k1_N_per_m",), "C", 100.0,
          kind="stiffness"),
@@ -32,6 +33,11 @@ CASES = [
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_recovery_through_the_users_path(case, tmp_path):
+    check_case(case, tmp_path)
+
+
+def check_case(case: Case, tmp_path) -> None:
+    """The user's path on one case, and the same conclusion under what another machine can perturb."""
     o = run_case(case, tmp_path)
     assert not o.error, o.error
     claimed = [n for n in o.named if not n.startswith("mechanics.")]  # undecided or not: a claim
