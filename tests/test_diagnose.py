@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 import sys
 
@@ -140,6 +141,10 @@ def test_a_candidate_does_not_take_the_credit_for_iterations_its_base_fit_lacked
     assert passes(sc), sc  # the step gates alone would take it
     assert not own_share(s, short, short, sc, floor)
     assert sc.fit_only and sc.error_neutral < 1.2 * sc.error < short.rms("x1")
+    # a fit whose other values the model cannot run without the candidate (its error a NaN there, as the press
+    # record's base model at the slip law's fit) needs the candidate: it earns its step
+    sc.fitted.values["friction.mu0"] = float("nan")
+    assert own_share(s, short, short, sc, floor) and math.isnan(sc.error_neutral)
 
 
 def test_the_fewest_held_out_windows_that_can_pass_the_consistency_gate():

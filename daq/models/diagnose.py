@@ -170,6 +170,8 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
     held, ms_held = session.held_out(current.problem, values)
     neutral = Fitted(current.model, values, current.fit, held, current.problem, ms_held, current.ms_fit)
     s.error_neutral = neutral.rms(session.primary)
+    if not math.isfinite(s.error_neutral):  # without it the model cannot even run at those values: it is needed
+        return True  # (seen: rate-and-state's slip law at the noise floor, the base model at its values a NaN)
     s.fit_only = not passes(score(base, neutral, s.fitted, s.cands, floor, session))
     return not s.fit_only
 
