@@ -230,7 +230,9 @@ def _belt_rig_file(case: Case, work: Path) -> str:
     return str(path)
 
 
-def run_case(case: Case, work: Path) -> Outcome:
+def run_case(case: Case, work: Path, workers: int | None = None) -> Outcome:
+    """One case through the user's path; ``workers``: diagnose's processes (1 on a Dask worker, which runs one case a
+    core and may not fork)."""
     t0 = time.perf_counter()
     o = Outcome(case)
     data = work / f"{case.rig}-{case.name.replace('/', '_').replace(' ', '_')}-{case.rate:g}.csv"
@@ -259,7 +261,8 @@ def run_case(case: Case, work: Path) -> Outcome:
         c0 = _run("compare", str(data), *common)
         o.e0, o.f0, o.e_final = c0["error"], c0["noise_floor"], c0["error"]
         for rnd in (1, 2):
-            d = _run("diagnose", str(data), "--model", str(model), "--rig", case.rig, "--json")
+            d = _run("diagnose", str(data), "--model", str(model), "--rig", case.rig, "--json",
+                     *(("--workers", str(workers)) if workers else ()))
             o.diagnoses.append(d)
             o.rounds = rnd
             if not d["missing_effect_found"]:
@@ -330,6 +333,28 @@ HEADER = ("| rig | case | rate | hidden (refsim form) | named (in order) | margi
           "time |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
+def _on_dask(todo: list[Case], work: Path, scheduler: str | None) -> list[Outcome]:
+    """The cases fanned out by the archive's engine (daq/models/archive_jobs.py: the numba cache warmed first, lost
+    workers' cases run again, rows printed as they finish), returned in the table's order."""
+    from daq.models.archive_jobs import engine, fan_out, warm_numba
+    from daq.models.spec import seed_model
+
+    def say(msg: str) -> None:
+        print(f"  {msg}", file=sys.stderr, flush=True)
+
+    out: dict[int, Outcome] = {}
+    with engine(scheduler, None) as (client, name):
+        for rig in sorted({c.rig for c in todo}):
+            warm_numba(seed_model(rig))
+        say(f"{len(todo)} cases on {name}")
+        names = [f"recovery-{i}-{c.name.replace('/', '_').replace(' ', '_')}-{c.rate:g}" for i, c in enumerate(todo)]
+        for got in fan_out(client, run_case, [(c, work, 1) for c in todo], names, say):
+            o = got.result if got.error is None else Outcome(todo[got.index], error=f"(worker): {got.error}")
+            out[got.index] = o
+            print(row(o), flush=True)
+    return [out[i] for i in range(len(todo))]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rate", type=float, action="append")
@@ -338,13 +363,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rig", action="append",
                     help="only this rig's cases (repeatable); belt-ndof's cases run only when named here")
     ap.add_argument("--json")
+    ap.add_argument("--dask", metavar="local|tcp://HOST:PORT",
+                    help="run the cases on the archive's engine (Dask distributed): a LocalCluster with a worker a core, "
+                         "or the scheduler at this address; each case's diagnoses then run in one process")
     args = ap.parse_args(argv)
     todo = [c for c in cases(args.rate or [1000.0, 100.0], args.quick, belt="belt-ndof" in (args.rig or ()))
             if (not args.only or c.name in args.only) and (not args.rig or c.rig in args.rig)]
     print(HEADER, flush=True)
     results = []
     with tempfile.TemporaryDirectory(prefix="recovery-") as tmp:
-        for case in todo:
+        if args.dask:
+            results = _on_dask(todo, Path(tmp), None if args.dask == "local" else args.dask)
+        for case in todo if not args.dask else ():
             o = run_case(case, Path(tmp))
             results.append(o)
             print(row(o), flush=True)

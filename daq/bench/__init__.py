@@ -21,6 +21,7 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "diagnose": ("daq.bench.diagnose", "bench_diagnose", "format_diagnose"),
     "web": ("daq.bench.web", "bench_web", "format_web"),
     "rsf": ("daq.bench.rsf", "bench_rsf", "format_rsf"),
+    "archive": ("daq.bench.archive", "bench_archive", "format_archive"),
 }
 
 

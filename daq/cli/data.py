@@ -12,11 +12,13 @@ import sys
 
 def cmd_import(args: argparse.Namespace) -> int:
     # heavy: h5py, numpy, nptdms
+    from daq.io.archive import catalog_new_file
     from daq.io.importer import import_file
 
     import_file(args.file, args.rig, args.output, maps=args.map, time=args.time, rate=args.rate,
                 drop_nonfinite=args.drop_nonfinite)
     print(f"imported {args.file} -> {args.output}", file=sys.stderr)
+    catalog_new_file(args.output, lambda line: print(line, file=sys.stderr))  # a warning at worst, never a failure
     return 0
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -27,10 +28,30 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from daq.config import load_rig
 from daq.errors import InputError
+from daq.io.archive import catalog_new_file
 from daq.io.runfile import BlockRejected, RunWriter, WriterCfg
 from daq.io.stream_format import Block, BusEvent
 
 from .bus import BusCfg, Subscriber
+
+MIN_FREE_BYTES = 64 << 20  # > 0.25 s at the 40 MB/s `daq bench bus` writes, plus room to close the file
+FREE_CHECK_S = 0.25  # how often free space is read (statvfs: microseconds)
+
+
+def free_space_refusal(path: Path, min_free: int, pending: int = 0) -> str | None:
+    """Why a recording may not (go on) write to ``path``'s filesystem, or None.
+
+    Why a margin: on a full disk h5py printed 4 563 lines of errno 28 over 8 s, status said all was
+    well, then the recorder died by SIGSEGV and the file could not be recovered (issue 29). Stopping
+    while there is room left closes the file cleanly, with an event saying why.
+    """
+    where = path
+    while not where.is_dir() and where != where.parent:  # the file, or a folder not made yet: its filesystem
+        where = where.parent
+    free = shutil.disk_usage(where).free - pending
+    if free >= min_free:
+        return None
+    return f"only {free / 1e6:.1f} MB free on the disk of {path} (the margin is {min_free / 1e6:.1f} MB)"
 
 
 class RecorderCfg(BaseModel):
@@ -45,6 +66,8 @@ class RecorderCfg(BaseModel):
     progress_s: float = Field(1.0, gt=0.0)
     poll_s: float = Field(0.05, gt=0.0, le=0.25, description="receive timeout; also the idle flush tick")
     drain_s: float = Field(2.0, ge=0.0, description="on stop, keep writing what is already queued, this long at most")
+    min_free_bytes: int = Field(MIN_FREE_BYTES, ge=0, description="refuse to start, and stop cleanly, below this "
+                                                                  "much free space on the file's filesystem")
 
 
 class Recorder:
@@ -58,6 +81,7 @@ class Recorder:
         for ep in self.cfg.also:
             self.sub.sock.connect(ep)
         self.rejected = 0
+        self.disk_full: str | None = None  # why run() stopped before the disk was full, if it did
         self._stop = threading.Event()
         self._log = log  # callable(str) for the progress lines, or None
 
@@ -76,6 +100,7 @@ class Recorder:
         t_start = last_log = time.monotonic()
         next_log = t_start + self.cfg.progress_s
         last_samples = w.samples_written
+        next_free = t_start
         while not self._stop.is_set():
             msg = sub.recv(poll)
             if msg is None:
@@ -83,6 +108,12 @@ class Recorder:
             else:
                 self._handle(msg)
             now = time.monotonic()
+            if now >= next_free:
+                next_free = now + FREE_CHECK_S
+                self.disk_full = free_space_refusal(Path(w.path), self.cfg.min_free_bytes, w._pending_bytes)
+                if self.disk_full is not None:  # stop with room left to close the file; no drain
+                    w.note("disk_full", f"recording stopped: {self.disk_full}", source=self.cfg.name)
+                    return
             if now >= next_log:
                 if self._log is not None:
                     rate = (w.samples_written - last_samples) / (now - last_log)
@@ -104,7 +135,7 @@ class Recorder:
                 self.rejected += 1
                 self.writer.note("rejected", str(exc)[:500], source=self.cfg.name, count=1)
         else:
-            self.writer.event(msg)
+            self.writer.event(_storable(msg))
 
     def _drain(self) -> None:
         deadline = time.monotonic() + self.cfg.drain_s
@@ -118,6 +149,16 @@ class Recorder:
 
     def close(self) -> None:
         self.sub.close()
+
+
+def _storable(ev: BusEvent) -> BusEvent:
+    """The event with every NUL written as ``\\x00``: HDF5's variable-length strings cannot hold one, and one
+    such event ended the recording ("VLEN strings do not support embedded NULLs", issue 29). The control
+    socket refuses a NUL; this covers every other publisher on the bus."""
+    texts = {k: getattr(ev, k) for k in ("kind", "source", "detail")}
+    if not any("\x00" in v for v in texts.values()):
+        return ev
+    return ev.model_copy(update={k: v.replace("\x00", "\\x00") for k, v in texts.items()})
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -135,6 +176,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--drain-s", type=float, default=RecorderCfg().drain_s,
                     help="on SIGTERM, keep writing what is already queued for at most this long")
     ap.add_argument("--stream", action="append", dest="streams", help="record only this stream (repeatable)")
+    ap.add_argument("--min-free-mb", type=float, default=MIN_FREE_BYTES / 1e6,
+                    help="refuse to start, and stop cleanly, below this much free space (MB)")
     ap.add_argument("--duration", type=float, help="stop after S seconds")
     ap.add_argument("--note", action="append", default=[], help="operator note stored as an event (repeatable)")
     ap.add_argument("--force", action="store_true", help="overwrite an existing output file")
@@ -151,10 +194,13 @@ def _setup(args: argparse.Namespace) -> tuple[RunWriter, Recorder]:
     try:
         wcfg = WriterCfg(flush_s=args.flush_s)
         rcfg = RecorderCfg(endpoint=args.endpoint, also=args.also, rcvhwm=args.rcvhwm, streams=args.streams,
-                           drain_s=args.drain_s)
+                           drain_s=args.drain_s, min_free_bytes=int(args.min_free_mb * 1e6))
     except ValidationError as exc:
         err = exc.errors()[0]
         raise InputError("recorder", "--" + str(err["loc"][0]).replace("_", "-"), err["msg"]) from None
+    low = free_space_refusal(out.parent, rcfg.min_free_bytes)
+    if low is not None:
+        raise InputError(str(out), "-o", f"cannot record: {low}")
     cfg = load_rig(args.rig)
     ramp_text = ""
     if args.ramp:
@@ -213,12 +259,17 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # a write error (disk full, ...): keep what is on disk, say why, exit non-zero
         _say(f"recorder: stopped by {type(exc).__name__}: {exc}", sys.stderr)
         rc = 1
+    if rec.disk_full is not None:
+        _say(f"recorder: stopped before the disk was full: {rec.disk_full}; the file is closed and readable",
+             sys.stderr)
+        rc = 3
     try:
         if orphaned.is_set():
             writer.note("parent_gone", f"process {args.parent_pid} died; file closed")
         writer.note("stop", f"{writer.samples_appended} samples, {rec.sub.stats.lost_blocks} lost blocks",
                     count=rec.sub.stats.lost_blocks)
         writer.close()
+        catalog_new_file(writer.path, lambda line: _say(line, sys.stderr))  # never raises: the file is what counts
     except Exception as exc:
         _say(f"recorder: closing failed: {type(exc).__name__}: {exc}", sys.stderr)
         rc = 1

@@ -1,0 +1,341 @@
+"""Re-diagnosing an archive: every catalogued recording against a model, on Dask distributed, results kept.
+
+Why Dask distributed (decision 33): labs already run batch reprocessing on existing engines, and
+``distributed.Client`` is the same code path for a ``LocalCluster`` on this machine (the default: no server to run)
+and for a lab's cluster (``--scheduler tcp://HOST:PORT``); it reschedules the work of a lost worker by itself.
+What this module adds around it:
+
+- the entry point handed to workers is :func:`diagnose_recording`, a plain Python function of this module, never a
+  numba function (those kill workers when pickled: dask/distributed#7929); it runs the same ``diagnose`` as
+  `daq diagnose`, with one process per recording (``workers=1``: Dask is the parallelism);
+- the numba cache is warmed once, in this process, before anything fans out: workers starting together would
+  otherwise compile the same kernels at once and race on the cache files (numba#4807);
+- every result is stored in the catalog the moment it arrives, in its own transaction, and its future released, so a
+  job killed at any point resumes without redoing finished work, and a worker lost after a result was stored cannot
+  make the scheduler compute it again; a task lost with its worker is resubmitted (RESUBMIT times);
+- progress for the whole job on stderr; the workers log each computation's start and end to the scheduler's event
+  log (topic ``daq-archive``), which is how a job counts what was computed where (and whether anything was computed
+  again after its result was stored).
+
+Results are keyed by (recording hash, model digest, CODE_VERSION): asked again, a stored result is returned
+(``cached``); ``recompute`` ignores them.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import logging
+import os
+import socket
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import distributed
+from distributed import Client, LocalCluster, as_completed
+from pydantic import Field
+
+from daq.config import Strict
+from daq.errors import DaqError, InputError
+from daq.io.archive import Catalog, CatalogRow, file_hash
+from daq.sim.run import simulate
+
+from .diagnose import diagnose
+from .session import Session
+from .spec import Model, rig_config_for
+
+KIND = "diagnose"
+RESULTS_REVISION = 1  # raise when the diagnosis changes what it concludes: stored results then no longer count
+try:
+    _VERSION = importlib.metadata.version("friction-daq")
+except importlib.metadata.PackageNotFoundError:  # a source tree without the package installed
+    _VERSION = "0"
+CODE_VERSION = f"{_VERSION}+diagnose.{RESULTS_REVISION}"
+EVENT_TOPIC = "daq-archive"
+RESUBMIT = 2  # a task whose worker died (KilledWorker after the scheduler's own retries) is submitted again this often
+CONNECT_S = 5.0  # an unreachable scheduler is an error after this long
+WARM_S = 3.0  # seconds of a simulated record the numba warm-up fits
+
+
+class DiagnoseRow(Strict):
+    """One recording's answer (`daq archive diagnose --json` prints a list of these)."""
+
+    path: str
+    hash: str
+    model_digest: str
+    named: list[str]  # the effects named, in order
+    undecided: list[list[str]]  # each "undecided between A and B" as [A, B, ...]
+    error: float | None  # the model's error on held-out windows (as `daq diagnose`'s "error")
+    error_unit: str | None
+    noise_floor: float | None
+    cached: bool  # the stored result was returned, nothing computed
+    failure: str | None = None  # why the recording could not be diagnosed (one line naming file and field)
+    seconds: float | None = None  # of the computation (the stored one's, when cached)
+    worker: str | None = None
+
+
+class JobReport(Strict):
+    """A whole job: its rows, where it ran, and the counts the fault tests read."""
+
+    rows: list[DiagnoseRow]
+    engine: str  # serial | LocalCluster (N workers) | the scheduler's address
+    computed: int
+    cached: int
+    failed: int
+    seconds: float
+    resubmitted: int = 0  # tasks submitted again after their worker died
+    runs: dict[str, int] = Field(default_factory=dict)  # per hash: computations that finished on a worker (the scheduler's event log)
+    after_stored: int = 0  # computations that started after that recording's result was stored (should be 0)
+    lost: int = 0  # computations started on a worker that never finished there (the worker died under them)
+
+
+# --------------------------------------------------------------------------- the entry point on a worker
+
+
+def _log(msg: dict[str, Any]) -> None:
+    """To the scheduler's event log when on a Dask worker (the job counts computations from it); nothing else."""
+    try:
+        distributed.get_worker().log_event(EVENT_TOPIC, msg)
+    except ValueError:  # not on a worker: the serial path
+        pass
+
+
+def diagnose_recording(path: str, digest: str, model: Model) -> dict[str, Any]:
+    """Diagnose one recording with ``model``: a plain function of a module, so any worker can import it. Bad input
+    (a damaged file, a file changed since it was catalogued, a recording of another rig) is a ``failure`` line in
+    the answer, not an exception: one bad recording must not cost the others their results."""
+    t0 = time.time()
+    _log({"hash": digest, "phase": "start", "t": t0, "pid": os.getpid()})
+    result, failure = None, None
+    try:
+        if file_hash(path) != digest:
+            raise InputError(path, "(file)", "changed since it was catalogued: `daq archive scan` it again")
+        s = Session.open(path, model)
+        result = diagnose(s, model, workers=1).as_json(s)
+    except (DaqError, OSError) as exc:
+        failure = str(exc) if isinstance(exc, DaqError) else f"{path}: (file): {exc}"
+    except Exception as exc:  # noqa: BLE001 - a numerical failure on one record is reported, the job goes on
+        failure = f"{path}: (diagnose): {type(exc).__name__}: {exc}"
+    t1 = time.time()
+    _log({"hash": digest, "phase": "done", "t0": t0, "t": t1, "pid": os.getpid()})
+    return {"hash": digest, "result": result, "failure": failure, "seconds": t1 - t0,
+            "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def warm_numba(model: Model) -> None:
+    """Compile (or load from the on-disk cache) the kernels a diagnosis of ``model`` runs, in this process, before
+    any worker starts on them: simultaneous first compiles race on the cache files (numba#4807)."""
+    cfg = rig_config_for(model)
+    rec = simulate(cfg, duration=WARM_S, rate=100.0, seed=0)
+    Session(rec, "numba warm-up", cfg).fit(model)
+
+
+# --------------------------------------------------------------------------- rows and their results
+
+
+def _row(rec: CatalogRow, model_digest: str, stored: dict[str, Any], cached: bool) -> DiagnoseRow:
+    res, failure = stored.get("result"), stored.get("failure")
+    return DiagnoseRow(
+        path=rec.path, hash=rec.hash, model_digest=model_digest, cached=cached, failure=failure,
+        named=list(res["named"]) if res else [],
+        undecided=[list(u["between"]) for u in res["undecided"]] if res else [],
+        error=res["error"] if res else None, error_unit=res["error_unit"] if res else None,
+        noise_floor=res["noise_floor"] if res else None, seconds=stored.get("seconds"), worker=stored.get("worker"))
+
+
+def match_models(rows: list[CatalogRow], models: list[Model], say: Callable[[str], None]) -> list[tuple[CatalogRow, Model]]:
+    """Each recording with the model for its rig (one model per rig); recordings of a rig without one are named and
+    left out."""
+    by_rig: dict[str, Model] = {}
+    for m in models:
+        if m.rig in by_rig:
+            raise InputError("--model", m.rig, "two models for one rig: give one per rig")
+        by_rig[m.rig] = m
+    out = [(r, by_rig[r.rig]) for r in rows if r.rig in by_rig]
+    skipped: dict[str, int] = {}
+    for r in rows:
+        if r.rig not in by_rig:
+            skipped[r.rig] = skipped.get(r.rig, 0) + 1
+    for rig, n in skipped.items():
+        say(f"{n} recording(s) of {rig} left out: no --model for that rig")
+    return out
+
+
+def status(cat: Catalog, rows: list[CatalogRow], models: list[Model]) -> dict[str, Any]:
+    """Which recordings are diagnosed with each model (at this code version) and which are not yet."""
+    out: dict[str, Any] = {"code_version": CODE_VERSION, "models": []}
+    for m in models:
+        digest = m.digest()
+        have = cat.results(digest, CODE_VERSION, KIND)
+        mine = [r for r in rows if r.rig == m.rig]
+        out["models"].append({"model_digest": digest, "rig": m.rig, "model": m.describe(), "recordings": len(mine),
+                              "diagnosed": sum(r.hash in have for r in mine),
+                              "not_diagnosed": [{"path": r.path, "hash": r.hash} for r in mine if r.hash not in have]})
+    return out
+
+
+# --------------------------------------------------------------------------- the job
+
+
+def _count(events: list[tuple[float, dict]], stored_at: dict[str, float],
+           since: float) -> tuple[dict[str, int], int, int]:
+    """From the workers' event log (this job's part: started at or after ``since``; a lab's scheduler keeps earlier
+    jobs' too): computations finished per hash, those started after the hash's result was stored, and those started
+    that never finished (their worker died)."""
+    runs: dict[str, int] = {}
+    started, finished = set(), set()
+    after = 0
+    for _, msg in events:
+        if msg.get("t0", msg["t"]) < since:
+            continue
+        key = (msg["hash"], msg["pid"], msg.get("t0", msg["t"]))
+        if msg.get("phase") == "start":
+            started.add(key)
+        elif msg.get("phase") == "done":
+            finished.add(key)
+            runs[msg["hash"]] = runs.get(msg["hash"], 0) + 1
+            after += int(msg["hash"] in stored_at and msg["t0"] > stored_at[msg["hash"]])
+    return runs, after, len(started - finished)
+
+
+async def _preload() -> None:
+    """Run on every worker at the start of a job, not waited for (``client.run`` takes that only for a coroutine):
+    unpickling it imports this module and with it the models (not the compiled kernels: those load on the first
+    diagnosis, after this process warmed the cache)."""
+
+
+def _close(client: Client | None, cluster: LocalCluster | None) -> None:
+    if client is not None:
+        client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalCluster | None, str]:
+    """A client of the given scheduler, or of a LocalCluster started here: the one code path after this."""
+    logging.getLogger("distributed").setLevel(logging.ERROR)  # our own progress lines say what happens
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=CONNECT_S), None, scheduler
+        except Exception as exc:  # noqa: BLE001 - OSError, TimeoutError, ValueError for a malformed address ...
+            raise InputError("--scheduler", scheduler, f"cannot reach a Dask scheduler there ({type(exc).__name__}: "
+                                                       f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+    n = workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster, f"LocalCluster ({n} worker{'s' if n > 1 else ''})"
+
+
+class Fanned:
+    """What :func:`fan_out` yields for each task: its index, its result, or the error once resubmitting gave up."""
+
+    def __init__(self, index: int, result: Any = None, error: BaseException | None = None) -> None:
+        self.index, self.result, self.error = index, result, error
+
+
+def fan_out(client: Client, fn: Callable[..., Any], tasks: list[tuple], names: list[str],
+            say: Callable[[str], None], counter: dict[str, int] | None = None) -> Iterator[Fanned]:
+    """Submit ``fn(*task)`` for every task (in the given order: put the longest first) and yield each as it finishes.
+    The caller stores the result before asking for the next one: the future is released right after, so a worker
+    lost later cannot make the scheduler compute it again. A task whose worker died under it more often than the
+    scheduler allows (KilledWorker) is submitted again RESUBMIT times, then yielded with its error.
+    ``counter["resubmitted"]`` counts those."""
+    futures: dict[distributed.Future, tuple[int, int]] = {}
+    for i, task in enumerate(tasks):
+        futures[client.submit(fn, *task, key=f"{names[i]}-0", pure=False, retries=1)] = (i, 0)
+    queue = as_completed(list(futures))
+    for f in queue:
+        i, attempt = futures.pop(f)
+        try:
+            out = Fanned(i, result=f.result())
+        except Exception as exc:  # noqa: BLE001 - KilledWorker (its worker died too often), a lost task
+            if attempt < RESUBMIT:
+                if counter is not None:
+                    counter["resubmitted"] = counter.get("resubmitted", 0) + 1
+                say(f"{names[i]}: {type(exc).__name__} ({exc}); submitted again")
+                g = client.submit(fn, *tasks[i], key=f"{names[i]}-{attempt + 1}", pure=False, retries=1)
+                futures[g] = (i, attempt + 1)
+                queue.add(g)
+                continue
+            out = Fanned(i, error=exc)
+        finally:
+            f.release()  # forgotten by the scheduler: a lost worker cannot make it compute this again
+        yield out
+
+
+@contextmanager
+def engine(scheduler: str | None, workers: int | None) -> Iterator[tuple[Client, str]]:
+    """A client of ``scheduler``, or of a LocalCluster of ``workers`` started here, closed after; with the engine's
+    name. Workers import this module (and the models) at once, while the caller warms the numba cache."""
+    client, cluster, name = _connect(scheduler, workers)
+    try:
+        client.run(_preload, wait=False)
+        yield client, name
+    finally:
+        _close(client, cluster)
+
+
+def run_diagnoses(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, scheduler: str | None = None,
+                  workers: int | None = None, serial: bool = False, recompute: bool = False,
+                  say: Callable[[str], None] = lambda msg: None) -> JobReport:
+    """Diagnose every (recording, model) pair not diagnosed yet (all with ``recompute``), each result stored as it
+    arrives; ``serial``: in this process, one after the other (the baseline the bench compares Dask with)."""
+    t_start, wall_start = time.perf_counter(), time.time()
+    digests = {id(m): m.digest() for _, m in pairs}
+    answers: dict[str, DiagnoseRow] = {}
+    todo: list[tuple[CatalogRow, Model]] = []
+    for rec, m in pairs:
+        stored = None if recompute else cat.result(rec.hash, digests[id(m)], CODE_VERSION, KIND)
+        if stored is not None:
+            answers[rec.hash] = _row(rec, stored.model_digest, stored.result, cached=True)
+        else:
+            todo.append((rec, m))
+    total, done = len(pairs), len(answers)
+    say(f"{total} recording(s); {done} answered from the catalog; {len(todo)} to diagnose")
+    stored_at: dict[str, float] = {}
+
+    def store(rec: CatalogRow, m: Model, out: dict[str, Any]) -> None:
+        nonlocal done
+        stored_at[rec.hash] = time.time()
+        cat.store_result(rec.hash, digests[id(m)], CODE_VERSION, KIND, out, out.get("seconds"), out.get("worker"))
+        row = answers[rec.hash] = _row(rec, digests[id(m)], out, cached=False)
+        done += 1
+        what = (f"failed: {row.failure}" if row.failure else
+                "named " + (", ".join(row.named) or "nothing") + ("; undecided " + "; ".join(
+                    " / ".join(u) for u in row.undecided) if row.undecided else ""))
+        say(f"[{done}/{total}] {rec.name}: {what} ({out.get('seconds', 0.0):.1f} s, {out.get('worker')})")
+
+    def warm() -> None:
+        for m in {id(m): m for _, m in todo}.values():
+            say(f"warming the numba cache for {m.rig} before fanning out")
+            warm_numba(m)
+
+    name, counter, runs, after, lost = ("serial" if serial or not todo else "dask"), {}, {}, 0, 0
+    if todo and serial:
+        warm()
+        for rec, m in todo:
+            store(rec, m, diagnose_recording(rec.path, rec.hash, m))
+    elif todo:
+        with engine(scheduler, workers) as (client, name):
+            warm()
+            say(f"on {name}: {len(client.scheduler_info().get('workers', {}))} worker(s) connected")
+            # the largest files first (a diagnosis's cost grows with the record): the last one to finish is then a
+            # short one, not a long one started late with the other workers idle
+            order = sorted(todo, key=lambda pair: -pair[0].size)
+            tasks = [(rec.path, rec.hash, m) for rec, m in order]
+            names = [f"daq-diagnose-{rec.hash[:16]}-{digests[id(m)]}" for rec, m in order]
+            for got in fan_out(client, diagnose_recording, tasks, names, say, counter):
+                rec, m = order[got.index]
+                store(rec, m, got.result if got.error is None else
+                      {"hash": rec.hash, "result": None, "failure": f"{rec.path}: (worker): {got.error}"})
+            runs, after, lost = _count(client.get_events(EVENT_TOPIC), stored_at, wall_start)
+    rows = [answers[rec.hash] for rec, _ in pairs]
+    seconds = time.perf_counter() - t_start
+    failed = sum(r.failure is not None for r in rows)
+    report = JobReport(rows=rows, engine=name, computed=len(todo), cached=total - len(todo), failed=failed,
+                       seconds=seconds, resubmitted=counter.get("resubmitted", 0), runs=runs, after_stored=after,
+                       lost=lost)
+    say(f"done: {total} recording(s), {report.computed} diagnosed, {report.cached} from the catalog, {failed} failed, "
+        f"{seconds:.1f} s" + (f" on {name} ({60 * len(todo) / seconds:.1f} records/min)" if todo else ""))
+    return report
