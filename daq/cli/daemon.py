@@ -126,10 +126,12 @@ def parse_web(value: str, curve: bool) -> tuple[str, int]:
 
 def cmd_daemon(args: argparse.Namespace) -> int:
     # heavy: zmq, pydantic and the daemon only when the command runs
+    import zmq
     from pydantic import ValidationError
 
     from daq.config import load_rig
     from daq.daemon.control import ControlCfg, ControlServer, check_endpoint_security
+    from daq.daemon.rig_lock import RigBusy
     from daq.daemon.service import Daemon, DaemonCfg
     from daq.daemon.session_state import STATE_DIR_NAME, SessionBusy
     from daq.sim.effectset import parse_effect
@@ -151,19 +153,27 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     daemon = Daemon(DaemonCfg(rig=args.rig, sim=args.sim, sim_effects=args.effect, sim_time_scale=args.time_scale,
                               sim_seed=args.seed,
                               data_dir=Path(args.data_dir), bus_endpoint=args.bus,
-                              workdir=Path(args.workdir) if args.workdir else None, state_dir=state_dir))
+                              workdir=Path(args.workdir) if args.workdir else None, state_dir=state_dir,
+                              control_endpoint=args.control))
     done = daemon.install_signal_handlers()  # before start: a SIGTERM while starting still ramps down
     try:
         daemon.start()
-    except SessionBusy as exc:
+    except (SessionBusy, RigBusy) as exc:
         print(f"daq daemon: {exc}", file=sys.stderr, flush=True)
+        return 1
+    except zmq.ZMQError as exc:  # a socket another program holds: one line, not a traceback (issue 29)
+        print(f"daq daemon: cannot bind the sample bus {args.bus}: {exc}", file=sys.stderr, flush=True)
         return 1
     if daemon.unclean is not None:
         print(f"daq daemon: WARNING: {daemon.unclean.summary()}; motion refused until `daq ctl reset`",
               file=sys.stderr, flush=True)
     server = web = None
     try:
-        server = ControlServer(daemon.handlers(), ccfg).start()
+        try:
+            server = ControlServer(daemon.handlers(), ccfg).start()
+        except zmq.ZMQError as exc:
+            print(f"daq daemon: cannot bind the control socket {args.control}: {exc}", file=sys.stderr, flush=True)
+            return 1
         if web_at is not None:
             web = _start_web(daemon, server, web_at, ccfg.curve)
         sim = f" sim_bench_pid={daemon.sim.pid} sim_control={daemon.sim.control}" if daemon.sim else ""
@@ -265,7 +275,14 @@ def _run(fn, args: argparse.Namespace) -> int:
 
 
 def _fmt(x: Any, spec: str = ".4f") -> str:
-    return "-" if x is None else format(x, spec)
+    """A number for the status text; "-" for a null (e.g. ``gamma_se`` after a watchdog stop, issue 29) and the
+    value as it is if it is not a number, so no reply field can crash the text."""
+    if x is None:
+        return "-"
+    try:
+        return format(x, spec)
+    except (TypeError, ValueError):
+        return str(x)
 
 
 def _local(iso: str | None) -> str:
@@ -305,18 +322,18 @@ def _truth_lines(st: dict[str, Any]) -> list[str]:
 def format_status(st: dict[str, Any]) -> str:
     belt = st.get("belt") or {}
     age = belt.get("age_s")
-    lines = [f"rig {st['rig']}{' (simulated)' if st.get('sim') else ''}  pid {st['pid']}  up {st['uptime_s']:.0f} s  "
-             f"bus {st['bus']}",
+    lines = [f"rig {st['rig']}{' (simulated)' if st.get('sim') else ''}  pid {st['pid']}  "
+             f"up {_fmt(st.get('uptime_s'), '.0f')} s  bus {st['bus']}",
              *_truth_lines(st),
              f"belt      measured {_fmt(belt.get('measured'))} m/s{f' ({age:.1f} s ago)' if age is not None else ''}"
              f"  commanded {_fmt(belt.get('commanded'))} m/s  regulator set point {_fmt(belt.get('setpoint'))} m/s  "
              f"link {belt.get('regulator')}"]
     lines.append("streams")
     for name, s in sorted(st.get("streams", {}).items()):
-        lines.append(f"  {name:16s} {s['rate_hz']:9.1f} samples/s  {s['samples']:>10d} samples  "
-                     f"{s['blocks']:>7d} blocks")
+        lines.append(f"  {name:16s} {_fmt(s.get('rate_hz'), '9.1f')} samples/s  {_fmt(s.get('samples'), '>10d')} "
+                     f"samples  {_fmt(s.get('blocks'), '>7d')} blocks")
     for name, s in sorted(st.get("sources", {}).items()):
-        lines.append(f"  source {name:16s} {s['state']:12s} lost frames {s['lost_frames']}  "
+        lines.append(f"  source {name:16s} {_fmt(s.get('state'), '12s')} lost frames {s['lost_frames']}  "
                      f"checksum errors {s['checksum_errors']}  reconnects {s['reconnects']}")
     lines.append("drops     " + "  ".join(f"{k} {v}" for k, v in st.get("drops", {}).items()))
     web = st.get("web")
@@ -327,28 +344,38 @@ def format_status(st: dict[str, Any]) -> str:
     if est:
         last, fit = est.get("last") or {}, est.get("fit") or {}
         lines.append(f"estimator pid {est['pid']} {'alive' if est['alive'] else 'DEAD'}  "
-                     f"{est.get('blocks_per_s', 0.0):.1f} blocks/s in  lost {est.get('lost_blocks', 0)}  "
+                     f"{_fmt(est.get('blocks_per_s'), '.1f')} blocks/s in  lost {est.get('lost_blocks', 0)}  "
                      f"gaps {est.get('gaps', 0)}  stick-slip cycles {est.get('cycles', 0)}")
         if last:
             lines.append(f"          F_est {_fmt(last.get('F_est'), '.3f')} N  "
                          f"mu_est {_fmt(last.get('mu_est'), '.3f')}  v_rel {_fmt(last.get('v_rel'))} m/s  "
                          f"{'slip' if last.get('slip') else 'stick'}")
         if fit:
-            lines.append("          fit " + "  ".join(f"{k} {v:.4g}" for k, v in fit.items() if k != "t"))
+            lines.append("          fit " + "  ".join(f"{k} {_fmt(v, '.4g')}" for k, v in fit.items() if k != "t"))
     rec = st.get("recording")
     lines.append(f"recording {rec['path']} (pid {rec['pid']})  {rec['progress']}" if rec else "recording off")
     ramp = st.get("ramp")
     if ramp:
-        lines.append(f"ramp      {ramp['state']} {100 * ramp['fraction']:.0f} %  "
-                     f"t {ramp['t']:.1f}/{ramp['duration']:.1f} s  commanded {_fmt(ramp['commanded'])} m/s  "
-                     f"measured {_fmt(ramp.get('measured'))} m/s  {ramp['reason']}")
+        frac = ramp.get("fraction")
+        lines.append(f"ramp      {ramp.get('state')} {_fmt(None if frac is None else 100 * frac, '.0f')} %  "
+                     f"t {_fmt(ramp.get('t'), '.1f')}/{_fmt(ramp.get('duration'), '.1f')} s  "
+                     f"commanded {_fmt(ramp.get('commanded'))} m/s  "
+                     f"measured {_fmt(ramp.get('measured'))} m/s  {ramp.get('reason') or ''}")
     return "\n".join(lines)
 
 
 def cmd_ctl_status(args: argparse.Namespace) -> int:
     def run(a):
         st = _call(a, "status")
-        print(json.dumps(st) if a.json else format_status(st), flush=True)
+        if a.json:
+            print(json.dumps(st), flush=True)
+            return 0
+        try:
+            text = format_status(st)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a reply from another version: one line
+            raise CtlFailed(f"cannot show the daemon's status as text ({type(exc).__name__}: {exc}); "
+                            "use `daq ctl status --json`", 1) from None
+        print(text, flush=True)
         return 0
     return _run(run, args)
 

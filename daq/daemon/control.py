@@ -107,7 +107,8 @@ class _Args(BaseModel):
 
 
 def _path_text(v: str | None) -> str | None:
-    """A file name with a NUL can never be opened; say so here rather than as a handler's ValueError."""
+    """A file name with a NUL can never be opened, and a text with one cannot be stored (HDF5's variable-length
+    strings end at a NUL: a note with one ended the recorder, issue 29); say so here, before any handler."""
     if v is not None and "\x00" in v:
         raise ValueError("must not contain a NUL character")
     return v
@@ -133,7 +134,7 @@ class NoteArgs(_Args):
         """A blank note is almost certainly a client bug."""
         if not v.strip():
             raise ValueError("must not be empty")
-        return v
+        return _path_text(v)
 
 
 class RecordStartArgs(_Args):
@@ -234,6 +235,25 @@ class _Malformed(Exception):
     """A request that is not a JSON object; the message says why, for the reply."""
 
 
+class DuplicateKey(ValueError):
+    """A JSON object with a key twice: refused, because "the last one wins" let ``op`` be swapped unseen."""
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' object hook: the object, or DuplicateKey naming the first key given twice."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise DuplicateKey(f"duplicate key {_one_line(key, MAX_LOC_CHARS)!r}")
+        out[key] = value
+    return out
+
+
+def loads_strict(text: str | bytes) -> Any:
+    """``json.loads`` that refuses an object with a key twice (DuplicateKey); for every request that commands."""
+    return json.loads(text, object_pairs_hook=_unique_pairs)
+
+
 def _decode(raw: bytes) -> Any:
     """Parse one request frame as UTF-8 JSON; raises _Malformed with a client-facing reason.
 
@@ -246,7 +266,9 @@ def _decode(raw: bytes) -> Any:
     except UnicodeDecodeError as exc:
         raise _Malformed(f"not JSON (not UTF-8: byte {exc.start} is {raw[exc.start:exc.start + 1]!r})") from None
     try:
-        data = json.loads(text)
+        data = loads_strict(text)
+    except DuplicateKey as exc:
+        raise _Malformed(f"not one meaning ({exc})") from None
     except RecursionError:
         raise _Malformed("not JSON (nested too deep)") from None
     except json.JSONDecodeError as exc:

@@ -49,11 +49,14 @@ from daq.io.stream_format import Block
 from daq.ramps import Ramp
 from daq.sim.effectset import parse_effect
 from daq.streaming.bus import Subscriber
+from daq.streaming.recorder import MIN_FREE_BYTES, free_space_refusal
 from drivers.factory import build_drivers
+from drivers.motor_protocol import Status
 from sim_backends.process import SimBenchProcess, cross_process_wiring
 
 from .acquisition import Acquisition, AcquisitionCfg
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
+from .rig_lock import RigLocks, lock_keys
 from .session_state import (
     LATCHED,
     AttachedSimBench,
@@ -71,6 +74,7 @@ from .session_state import (
 )
 
 STANDSTILL = 1e-3  # [m/s]
+REGULATOR_POLL_S = 0.2  # STAT? while running: a watchdog trip reaches status, stderr and the events within 1 s
 ROOT = Path(__file__).resolve().parents[2]  # the repository: where `python -m daq...` finds the packages
 
 
@@ -91,6 +95,8 @@ class DaemonCfg(BaseModel):
     start_timeout_s: float = Field(180.0, gt=0, description="for the child processes to come up (numba caches)")
     state_dir: Path | None = Field(None, description="where RIG.session.json and RIG.lock live (the CLI: "
                                                      "DATA_DIR/.daq-daemon); None: no session state (library use)")
+    control_endpoint: str | None = Field(None, description="the control socket the CLI binds: locked machine-wide "
+                                                           "with the bus (daq/daemon/rig_lock.py) if its port is fixed")
 
 
 def _popen(args: list[str], **kw: Any) -> subprocess.Popen:
@@ -273,12 +279,17 @@ class Daemon:
         self.regulator: RegulatorReading | None = None  # the regulator's state, as last read
         self.recording_failure: RecordingEnd | None = None  # a recorder that died on us, until the next start
         self._halted = False  # a stop/estop was sent since the last ramp started: nothing is commanded
+        sockets = [cfg.bus_endpoint] + ([cfg.control_endpoint] if cfg.control_endpoint else [])
+        self.locks = RigLocks(lock_keys(self.rig, cfg.sim, sockets),
+                              holder=f"daemon pid {os.getpid()} for rig {self.rig.rig} "
+                                     f"(data dir {Path(cfg.data_dir).absolute()})")
 
     # --- life cycle
     def start(self) -> "Daemon":
         """Start everything; with a state directory, also find out how the last session on this rig ended."""
         endpoints = None
         try:
+            self.locks.acquire()  # RigBusy if a live daemon holds the rig, an instrument or a socket, any data dir
             if self.session is not None:
                 self.session.acquire()  # SessionBusy if a live daemon holds the rig
             if self.cfg.sim:
@@ -298,8 +309,10 @@ class Daemon:
             self._release()
             if self.session is not None:
                 self.session.release()  # the previous session's file stays as it was
+            self.locks.release()
             raise
         threading.Thread(target=self._rate_loop, name="rates", daemon=True).start()
+        threading.Thread(target=self._regulator_loop, name="regulator-watch", daemon=True).start()
         self.started = True
         return self
 
@@ -348,9 +361,8 @@ class Daemon:
     def _read_regulator(self) -> RegulatorReading:
         """STAT? from the regulator (and the simulated bench's watchdog trip counter); kept for status."""
         now = utcnow()
-        motor = self.drivers.motor
         try:
-            st = motor.status()
+            st = self._quiet_status()
         except Exception as exc:  # noqa: BLE001 - unreadable is itself the answer
             reading = RegulatorReading(error=f"{type(exc).__name__}: {exc}", read_at=now)
         else:
@@ -364,6 +376,52 @@ class Daemon:
                                        watchdog_trips=trips, read_at=now)
         self.regulator = reading
         return reading
+
+    def _quiet_status(self) -> Status:
+        """STAT? without the driver's own "watchdog" log event (it adds one per read while latched: polled at
+        5 Hz that would be 5 events a second in the recording); the transition is reported here instead."""
+        motor = self.drivers.motor
+        request = getattr(motor, "request", None)
+        return Status.parse(request("STAT?")) if request is not None else motor.status()
+
+    def _regulator_loop(self) -> None:
+        """Poll the regulator while the daemon runs, and report the moment it latches.
+
+        Why: the state was read only at start and on explicit commands, so after a watchdog trip
+        with the daemon alive (a 0.46 s stall from a 300 MB web request, issue 29) status said
+        DISABLED, 0 trips, motion allowed, nothing reached stderr, and the ``watchdog`` event was
+        written 19 s later at ``reset``. Every REGULATOR_POLL_S the state is read; a change into a
+        latched state (WATCHDOG, ESTOP) updates status (motion refused), prints one stderr line and
+        publishes an event.
+        """
+        while not self._rate_stop.wait(REGULATOR_POLL_S):
+            try:
+                st = self._quiet_status()
+            except Exception:  # noqa: BLE001, S112 - unreachable regulator: the motor stream's counters say so
+                continue
+            before = self.regulator
+            if before is not None and before.state == st.state:
+                continue
+            if st.state not in LATCHED:
+                self.regulator = RegulatorReading(state=st.state, latched=False, measured=st.measured,
+                                                  watchdog_trips=before.watchdog_trips if before else None,
+                                                  read_at=utcnow())
+                continue
+            reading = self._read_regulator()  # with the bench's trip counter
+            if not reading.latched or (before is not None and before.latched):
+                continue
+            self._report_latch(reading)
+
+    def _report_latch(self, reading: RegulatorReading) -> None:
+        """One stderr line and one event for a regulator that latched while the daemon ran (not our own e-stop)."""
+        if reading.state == "ESTOP" and self._halted:
+            return
+        trips = f", {reading.watchdog_trips} watchdog trip(s)" if reading.watchdog_trips is not None else ""
+        why = ("its watchdog stopped the belt (no command within its timeout)" if reading.state == "WATCHDOG"
+               else f"it latched in {reading.state}")
+        detail = f"regulator {reading.state} (latched){trips}: {why}; motion refused until `daq ctl reset`"
+        self.acq.publish_event("watchdog" if reading.state == "WATCHDOG" else "regulator_latched", "daemon", detail)
+        print(f"daq daemon: {detail}", file=sys.stderr, flush=True)
 
     def motion_refusal(self, read: bool = False) -> str | None:
         """Why no ramp may start now (None: it may): an unclean end not yet reset, or a latched regulator
@@ -406,6 +464,7 @@ class Daemon:
             self._release()
             if self.session is not None:
                 self.session.end_clean()
+            self.locks.release()
 
     def wait_standstill(self, timeout: float) -> bool:
         t_end = time.monotonic() + timeout
@@ -638,6 +697,9 @@ class Daemon:
             except OSError as exc:
                 raise InputError(str(path), "path", f"cannot write in {path.parent}: "
                                                     f"{exc.strerror or exc}") from None
+            low = free_space_refusal(path.parent, MIN_FREE_BYTES)  # the recorder's own margin, answered at once
+            if low is not None:
+                raise InputError(str(path), "path", f"cannot record: {low}")
             eps = [self.acq.endpoint] + ([self.estimator.endpoint] if self.estimator is not None else [])
             rec = self.recorder = RecorderProcess(path, self._rig_arg, eps, self.cfg.flush_s,
                                                   self.cfg.start_timeout_s)

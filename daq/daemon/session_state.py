@@ -179,8 +179,10 @@ class RecordingEnd(BaseModel):
     recovery_s: float | None = None
 
     def summary(self) -> str:
-        return (f"recording ENDED UNEXPECTEDLY at {local(self.ended_at)}: recorder pid {self.pid} {self.exit}; "
-                f"{self.path}: {self.recovery}")
+        said = self.last_progress.removeprefix("recorder: ") if self.last_progress.startswith("recorder: stopped") \
+            else ""  # its own last word, e.g. "stopped before the disk was full: ..."
+        return (f"recording ENDED UNEXPECTEDLY at {local(self.ended_at)}: recorder pid {self.pid} {self.exit}"
+                f"{f' ({said})' if said else ''}; {self.path}: {self.recovery}")
 
 
 # ----------------------------------------------------------------------------- the file and its lock

@@ -133,7 +133,8 @@ class Session:
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
-        if rig is not None and rig != model.rig:
+        own_file = model.rig_config is not None and Path(rig or "").resolve() == Path(model.rig_config).resolve()
+        if rig is not None and rig != model.rig and not own_file:  # its rig's id, or the rig file it was made from
             raise InputError(str(data), "--rig", f"the model is for {model.rig}, not {rig}")
         cfg = rig_config_for(model)
         rec = load_data(data, model.rig, cfg)

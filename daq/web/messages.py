@@ -37,7 +37,12 @@ class WebCfg(BaseModel):
     frame_s: float = Field(0.02, gt=0, le=1.0, description="shortest interval between two frames to one page")
     max_unacked: int = Field(1, ge=1, le=16, description="frames a page may hold unpainted before we wait for it "
                                                           "(more let frames queue behind the page's painting)")
-    max_clients: int = Field(16, ge=1, le=256)
+    max_clients: int = Field(16, ge=1, le=256, description="pages without the operator token (observers; all "
+                                                          "pages without CURVE)")
+    max_operator_pages: int = Field(4, ge=1, le=64, description="pages with the operator token, beside the others: "
+                                                                "viewers can never take the operator's place")
+    max_body_bytes: int = Field(1 << 20, ge=1024, le=1 << 28,
+                                description="request bodies above this get 413 as they arrive, never forwarded")
     status_s: float = Field(0.5, gt=0, description="how often the daemon's status is fetched")
     rcvhwm: int = Field(20_000, ge=100, description="bus blocks queued in the web process before it drops")
 

@@ -30,6 +30,7 @@ import asyncio
 import contextlib
 import ipaddress
 import json
+import logging
 import os
 import secrets
 import socket
@@ -51,15 +52,18 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from daq.daemon.control import Reply, is_local_endpoint
+from daq.daemon.control import DuplicateKey, Reply, is_local_endpoint, loads_strict
 
 from .feed import BusFeed, ClientSession
+from .limits import BodyLimit
 from .messages import Ack, ClientMessage, CommandBody, PipeCommand, PipeReply, Role, View, WebCfg
 
 STATIC = Path(__file__).resolve().parent / "static"
 PAGE_HEADER = "x-daq-page"  # a cross-site form cannot set it: commands need it (CSRF)
 HTTP_STATUS = {"malformed": 400, "input": 400, "forbidden": 403, "failed": 409, "internal": 500}
 COMMAND_TIMEOUT_S = 120.0  # record_start waits for the recorder to see data
+WS_PROTOCOL = "daq.v1"  # the page's WebSocket subprotocol; it offers "daq.token.TOKEN" beside it as the operator
+WS_TOKEN_PREFIX = "daq.token."  # a browser cannot set Authorization on a WebSocket: the token rides as a subprotocol
 
 
 def is_loopback_host(host: str) -> bool:
@@ -80,6 +84,28 @@ def _same_origin(origin: str | None, host: str | None) -> bool:
     if origin is None:
         return True
     return bool(host) and urlsplit(origin).netloc.lower() == host.lower()
+
+
+def _ws_token(ws: WebSocket) -> str | None:
+    """The operator token a page offered as a subprotocol (``daq.token.TOKEN``), as a Bearer value for role_for."""
+    offered = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")]
+    token = next((p.removeprefix(WS_TOKEN_PREFIX) for p in offered if p.startswith(WS_TOKEN_PREFIX)), None)
+    return f"Bearer {token}" if token else None
+
+
+def _refusal(error: str, code: str, status: int) -> JSONResponse:
+    return JSONResponse(Reply(id="", ok=False, error=error, code=code).model_dump(), status_code=status)
+
+
+def _page_request_refused(request: Request) -> JSONResponse | None:
+    """Why a state-changing request is not the page's own (None: it is): the CSRF header, and a browser's
+    Origin naming this server. Why both: a token-carrying POST from ``Origin: http://evil.example`` was
+    obeyed (issue 29); only a browser sends Origin, and a browser always does on a POST."""
+    if request.headers.get(PAGE_HEADER) != "1":
+        return _refusal(f"forbidden: missing {PAGE_HEADER} header", "forbidden", 403)
+    if not _same_origin(request.headers.get("origin"), request.headers.get("host")):
+        return _refusal(f"forbidden: origin {request.headers.get('origin')!r} is not this page's", "forbidden", 403)
+    return None
 
 
 class DaemonLink:
@@ -155,13 +181,15 @@ class WebApp:
         self.feed = feed
         self.link = link
         self.sessions: set[ClientSession] = set()
+        self.operator_sessions: set[ClientSession] = set()
         hosts = ["127.0.0.1", "localhost", "::1", "[::1]", cfg.host] if is_loopback_host(cfg.host) else ["*"]
         self.app = Starlette(
             routes=[Route("/", self.index), Route("/api/whoami", self.whoami), Route("/api/stats", self.stats),
                     Route("/api/latency/reset", self.reset_latency, methods=["POST"]),
                     Route("/api/command", self.command, methods=["POST"]), WebSocketRoute("/ws", self.ws),
                     Mount("/static", StaticFiles(directory=STATIC))],
-            middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=hosts)])
+            middleware=[Middleware(BodyLimit, max_bytes=cfg.max_body_bytes),
+                        Middleware(TrustedHostMiddleware, allowed_hosts=hosts)])
 
     async def index(self, request: Request) -> Response:
         return FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
@@ -174,29 +202,37 @@ class WebApp:
         """Display latency per stream and the feed's own counters (read-only; for `daq bench web`)."""
         with self.feed.lock:  # the bus thread adds streams
             samples = {k: h.samples for k, h in self.feed.streams.items()}
-        return JSONResponse({"latency": self.feed.latency.summary(), "pages": len(self.sessions),
+        pages = self.sessions | self.operator_sessions
+        return JSONResponse({"latency": self.feed.latency.summary(), "pages": len(pages),
                              "page_list": [{"frames_sent": s.frames_sent, "unacked": len(s.unacked)}
-                                           for s in self.sessions],
+                                           for s in pages],
                              "bus_lost_blocks": self.feed.sub.stats.lost_blocks,
                              "streams": samples})
 
     async def reset_latency(self, request: Request) -> Response:
-        if request.headers.get(PAGE_HEADER) != "1":
-            return JSONResponse({"error": f"missing {PAGE_HEADER} header"}, status_code=403)
+        """Operators only: an observer could reset the display-latency figures (issue 29)."""
+        refused = _page_request_refused(request)
+        if refused is not None:
+            return refused
+        if role_for(self.cfg, request.headers.get("authorization")) != "operator":
+            return _refusal("forbidden: observers may not reset the latency figures", "forbidden", 403)
         self.feed.latency.clear()
         return JSONResponse({"reset": True})
 
     async def command(self, request: Request) -> Response:
         """One control request from a page, answered by the daemon's control server with the page's role."""
-        if request.headers.get(PAGE_HEADER) != "1":
-            return JSONResponse(Reply(id="", ok=False, error=f"forbidden: missing {PAGE_HEADER} header",
-                                      code="forbidden").model_dump(), status_code=403)
-        try:
-            body = CommandBody.model_validate_json(await request.body())
+        refused = _page_request_refused(request)
+        if refused is not None:
+            return refused
+        try:  # the body is at most max_body_bytes here (BodyLimit); a key twice is refused, not "last wins"
+            body = CommandBody.model_validate(loads_strict(await request.body()))
+        except DuplicateKey as exc:
+            return _refusal(f"malformed request: {exc}", "malformed", 400)
         except ValidationError as exc:
             err = exc.errors(include_url=False)[0]
-            msg = f"malformed request: {'.'.join(map(str, err['loc']))}: {err['msg']}"
-            return JSONResponse(Reply(id="", ok=False, error=msg, code="malformed").model_dump(), status_code=400)
+            return _refusal(f"malformed request: {'.'.join(map(str, err['loc']))}: {err['msg']}", "malformed", 400)
+        except (ValueError, RecursionError) as exc:  # not JSON, not UTF-8, nested too deep
+            return _refusal(f"malformed request: not JSON ({type(exc).__name__})", "malformed", 400)
         role = role_for(self.cfg, request.headers.get("authorization"))
         try:
             reply = await asyncio.to_thread(self.link.call, role, body.op, body.args)
@@ -209,12 +245,14 @@ class WebApp:
         if not _same_origin(ws.headers.get("origin"), ws.headers.get("host")):
             await ws.close(code=1008)
             return
-        if len(self.sessions) >= self.cfg.max_clients:
+        operator = role_for(self.cfg, _ws_token(ws)) == "operator" and self.cfg.curve
+        pool = self.operator_sessions if operator else self.sessions
+        if len(pool) >= (self.cfg.max_operator_pages if operator else self.cfg.max_clients):
             await ws.close(code=1013)
             return
-        await ws.accept()
+        await ws.accept(subprotocol=WS_PROTOCOL if WS_PROTOCOL in ws.scope.get("subprotocols", []) else None)
         session = ClientSession(self.feed, self.cfg.max_unacked)
-        self.sessions.add(session)
+        pool.add(session)
         wake = asyncio.Event()
         receiver = asyncio.create_task(self._receive(ws, session, wake))
         loop = asyncio.get_running_loop()
@@ -238,11 +276,20 @@ class WebApp:
             pass
         finally:
             receiver.cancel()
-            self.sessions.discard(session)
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await receiver  # its end (a disconnect, a bad frame) is retrieved here, never logged as a traceback
+            pool.discard(session)
 
     async def _receive(self, ws: WebSocket, session: ClientSession, wake: asyncio.Event) -> None:
+        """The page's views and acks; ends (and with it the page's socket) on a disconnect or a frame that is not
+        UTF-8 text (uvicorn hands that on as a KeyError: its traceback reached the operator's log, issue 29)."""
         while True:
-            text = await ws.receive_text()
+            try:
+                text = await ws.receive_text()
+            except (WebSocketDisconnect, KeyError, RuntimeError, UnicodeDecodeError):
+                with contextlib.suppress(RuntimeError, OSError):
+                    await ws.close(code=1007)
+                return
             try:
                 msg = ClientMessage.model_validate({"msg": json.loads(text)}).msg
             except (ValueError, ValidationError):
@@ -252,6 +299,24 @@ class WebApp:
             elif isinstance(msg, Ack):
                 session.ack(msg.seq)
             wake.set()
+
+
+class OneLineErrors(logging.Filter):
+    """uvicorn's log records as one line each: the exception's type and message instead of its traceback.
+
+    Why: the web process's stderr is the daemon's, which is the operator's log; invalid UTF-8 in a
+    WebSocket text frame printed uvicorn's 8-line traceback there (issue 29), although uvicorn itself
+    answers it correctly (it closes that socket with 1007). A traceback is for a developer: the type and
+    message still name the fault.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and record.exc_info[1] is not None:
+            exc = record.exc_info[1]
+            record.msg = f"{record.getMessage()} ({type(exc).__name__}: {' '.join(str(exc).split())})"
+            record.args = None
+            record.exc_info = record.exc_text = None
+        return True
 
 
 def _bind(host: str, port: int) -> socket.socket:
@@ -287,6 +352,8 @@ def main() -> int:
     port = sock.getsockname()[1]
     server = uvicorn.Server(uvicorn.Config(web.app, log_level="warning", access_log=False, lifespan="off",
                                            ws_max_size=1 << 16, timeout_graceful_shutdown=2))
+    for name in ("uvicorn.error", "uvicorn.asgi", "uvicorn"):  # configured by uvicorn.Config just above
+        logging.getLogger(name).addFilter(OneLineErrors())
     stop = threading.Event()
     threading.Thread(target=_status_loop, args=(link, feed, cfg.status_s, stop), name="status", daemon=True).start()
 

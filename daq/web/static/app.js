@@ -341,7 +341,9 @@
   }
   function connect() {
     const proto = location.protocol === "https:" ? "wss://" : "ws://";
-    ws = new WebSocket(proto + location.host + "/ws");
+    // the operator's token rides as a subprotocol (a browser cannot set Authorization on a WebSocket), so
+    // token-less viewers can never take the operator's place (daq/web/server.py)
+    ws = new WebSocket(proto + location.host + "/ws", token ? ["daq.v1", "daq.token." + token] : ["daq.v1"]);
     ws.onopen = () => {
       $("conn").textContent = "live"; $("conn").className = "badge";
       cycles = [];  // a new connection sends every cycle the server keeps
