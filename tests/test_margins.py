@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daq.models.margins import LEVEL, margin, resamples
+from daq.models.candidates import Candidate
+from daq.models.margins import LEVEL, Margin, margin, resamples
+from daq.models.verdict import Verdict
 
 
 def test_a_model_against_itself_has_no_margin_and_is_not_decided():
@@ -51,3 +53,19 @@ def test_the_bootstrap_is_fixed_by_the_data_alone():
     a, b = rng.gamma(2.0, 1.0, 20), rng.gamma(2.0, 1.2, 20)
     assert margin("a", "b", a, b, 1.0, np.inf) == margin("a", "b", a.copy(), b.copy(), 1.0, np.inf)
     assert 0.0 < LEVEL < 0.5
+
+
+def test_a_named_effect_whose_form_is_open_says_which_run_tells_the_forms_apart():
+    """A verdict on rate-and-state whose aging/slip margin straddles zero reports the form as open and names the
+    run that separates the forms (velocity steps up and down, holds over decades); a decided form, or an effect
+    with one form, names none."""
+    over_nothing = Margin("rate-and-state (aging)", "nothing more", 0.9, 0.7, 1.0, 0.0)
+    open_form = Margin("rate-and-state (aging)", "rate-and-state (slip)", 0.02, -0.05, 0.08, 0.3)
+    v = Verdict(Candidate("effect", "rate-and-state", "aging"), [over_nothing], [open_form]).as_json()
+    assert v["decided"] and not v["form_decided"]
+    assert "velocity steps up and down" in v["forms_told_apart_by"] and "holds" in v["forms_told_apart_by"]
+    decided = Margin("rate-and-state (aging)", "rate-and-state (slip)", 0.2, 0.1, 0.3, 0.0)
+    v = Verdict(Candidate("effect", "rate-and-state", "aging"), [over_nothing], [decided]).as_json()
+    assert v["form_decided"]
+    one_form = Verdict(Candidate("effect", "normal-load"), [over_nothing]).as_json()
+    assert one_form["form_decided"] and one_form["forms_told_apart_by"] == ""

@@ -561,9 +561,13 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
         for v in d.verdicts:  # a phenomenon named whose form the data cannot tell (decision 32: aging or slip law)
             open_forms = [m for m in v.forms if not m.decided]
             if open_forms:
+                run = CATALOG[v.cand.phenomenon].forms_told_apart_by if v.cand.phenomenon in CATALOG else ""
                 parts.append(f"Its form is undecided: '{v.cand.label}' scores " + ", ".join(
                     f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f})" for m in open_forms)
-                    + "; the record does not tell these forms apart.")
+                    + "; the record does not tell these forms apart" + (f"; a run that does: {run}." if run else "."))
+            elif v.forms:
+                parts.append(f"Its form: '{v.cand.label}' over " + ", ".join(
+                    f"'{m.rival}' by {m.share:+.2f} of the excess (5 % bound {m.lower:+.2f})" for m in v.forms) + ".")
         base_free = set(d.base.model.free_names())
         vals = ", ".join(f"{k.split('.', 1)[-1]} = {f.values[k]:.4g}" for k in f.model.free_names() if k not in base_free)
         cmds = "; ".join(f"daq model add MODEL {add_command(c)}" for c in added)

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from daq.physics.effects import CATALOG
+
 from .candidates import Candidate, add_command
 from .extensions import fit_extensions, keep_fits
 from .margins import Margin, margin
@@ -55,7 +57,9 @@ class Verdict:
         return {"effect": self.cand.phenomenon, "form": self.cand.form, "label": self.cand.label,
                 "decided": self.decided, "margin": w.share, "margin_lower": w.lower, "nearest_rival": w.rival,
                 "rivals": [m.as_json() for m in self.margins],
-                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms]}
+                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms],
+                "forms_told_apart_by": CATALOG[self.cand.phenomenon].forms_told_apart_by
+                if self.forms and self.cand.phenomenon in CATALOG else ""}
 
 
 def rivals_for(x: Candidate, singles: list[Scored], members: list[Candidate], min_t: float) -> list[Candidate]:

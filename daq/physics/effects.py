@@ -130,6 +130,7 @@ class EffectSpec(BaseModel):
     stateful: bool = False
     default_form: str = ""
     forms: dict[str, FormSpec] = {}
+    forms_told_apart_by: str = ""  # the run that separates the forms, where the literature knows one
 
     def form_names(self) -> list[str]:
         """Every form, the default first ("" when the effect has only one form)."""
@@ -231,6 +232,9 @@ CATALOG: dict[str, EffectSpec] = {
                 _p("tau", E.ST_TAU, "s", 1.0, 0.01, 100.0, "adhesion time constant"),
             )},
             default_form="saturating",
+            forms_told_apart_by="sticks of many lengths, over at least two decades (slide-hold-slide: "
+                                "docs/ramps/slide-hold-slide.toml): the saturating form levels off past tau, "
+                                "the log form keeps growing",
             forms={"log": FormSpec(
                 meaning="static (peak) friction grows with the logarithm of adhesion time (Dieterich)",
                 params={"*": (
@@ -305,6 +309,10 @@ CATALOG: dict[str, EffectSpec] = {
             stateful=True,
             params={"belt-ndof": _rate_state_params(E.RS_B)},
             default_form="aging",
+            forms_told_apart_by="velocity steps up and down by 10x or more (docs/ramps/velocity-steps.toml: the slip "
+                                "law's response is symmetric in up and down steps, the aging law's is not) and "
+                                "holds over decades (docs/ramps/slide-hold-slide.toml: the aging law heals at rest, "
+                                "the slip law does not)",
             forms={"slip": FormSpec(
                 meaning="friction follows the slip speed's logarithm at once (a) and a contact state renewed only "
                         "by slip (b): rate-and-state with Ruina's slip law (no healing at rest)",

@@ -59,6 +59,7 @@ def test_steps_too_small_to_tell_the_laws_apart_say_so(tmp_path):
         assert d["best"] == "rate-and-state", d["summary"]
         (v,) = d["margins"]
         assert not v["form_decided"] and "form is undecided" in d["summary"], d["summary"]
+        assert "a run that does: velocity steps up and down" in d["summary"] and v["forms_told_apart_by"]
         assert (c0["error"] - c1["error"]) / (c0["error"] - c0["noise_floor"]) >= 0.7
     else:  # or nothing named at all: never a law the record cannot support
         assert "rate-and-state (slip)" not in d["summary"]
