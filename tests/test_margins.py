@@ -67,5 +67,9 @@ def test_a_named_effect_whose_form_is_open_says_which_run_tells_the_forms_apart(
     decided = Margin("rate-and-state (aging)", "rate-and-state (slip)", 0.2, 0.1, 0.3, 0.0)
     v = Verdict(Candidate("effect", "rate-and-state", "aging"), [over_nothing], [decided]).as_json()
     assert v["form_decided"]
+    # a consistent but tiny preference over a rival form that itself reaches the noise floor decides nothing
+    at_floor = Margin("rate-and-state (aging)", "rate-and-state (slip)", 0.003, 0.001, 0.005, 0.0, rival_at_floor=True)
+    v = Verdict(Candidate("effect", "rate-and-state", "aging"), [over_nothing], [at_floor]).as_json()
+    assert not v["form_decided"] and v["forms"][0]["rival_at_floor"] and v["forms_told_apart_by"]
     one_form = Verdict(Candidate("effect", "normal-load"), [over_nothing]).as_json()
     assert one_form["form_decided"] and one_form["forms_told_apart_by"] == ""

@@ -32,6 +32,7 @@ from daq.physics.effects import CATALOG
 
 from .candidates import Candidate, add_command, candidates_for
 from .extensions import fit_extensions, keep_fits
+from .margins import MIN_EXCESS
 from .screening import column, linearise, predicted_gain
 from .session import Fitted, Session
 from .spec import Model
@@ -44,7 +45,7 @@ PENALTY_PER_PARAM = 0.02  # reduction an added free parameter must earn
 # body-acceleration form of accel-sign (94 % vs 100 % of the excess), which can mimic a mass, hence a frequency
 MECH_PENALTY = 0.02
 MIN_T = 2.33  # improvements must be consistent across held-out windows (Wilcoxon z, one-sided p < 0.01)
-MIN_EXCESS = 0.10  # and there must be an excess to explain: error > 1.1 x noise floor
+# MIN_EXCESS (margins.py): there must be an excess to explain, error > 1.1 x noise floor
 MIN_STEP = 0.2  # a step must remove this share of the excess that is left (robust), after the penalty...
 MIN_STEP_FLOOR = 0.25  # ...and lower the error by this share of the noise floor (a real effect, not a form's misfit)
 MIN_STEP_BASE = 0.05  # ...and by this share of the base model's excess, unless it is a whole noise floor or more
@@ -563,7 +564,8 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
             if open_forms:
                 run = CATALOG[v.cand.phenomenon].forms_told_apart_by if v.cand.phenomenon in CATALOG else ""
                 parts.append(f"Its form is undecided: '{v.cand.label}' scores " + ", ".join(
-                    f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f})" for m in open_forms)
+                    f"{m.share:+.2f} of the excess against '{m.rival}' (5 % bound {m.lower:+.2f}"
+                    + ("; it too reaches the noise floor)" if m.rival_at_floor else ")") for m in open_forms)
                     + "; the record does not tell these forms apart" + (f"; a run that does: {run}." if run else "."))
             elif v.forms:
                 parts.append(f"Its form: '{v.cand.label}' over " + ", ".join(

@@ -24,6 +24,7 @@ import numpy as np
 N_BOOT = 2000  # resamples: the 5 % quantile's own spread is then ~0.5 % of the distribution's width
 LEVEL = 0.05  # one-sided: an explanation is preferred when its rival does better in fewer than 5 % of resamples
 SEED = 20261126  # fixed: a margin is a property of the data, not of the run
+MIN_EXCESS = 0.10  # an error within this share above the noise floor leaves nothing to explain (diagnose, verdict)
 
 
 @dataclass(frozen=True)
@@ -36,14 +37,15 @@ class Margin:
     lower: float  # the LEVEL quantile of the bootstrap distribution of ``share``
     upper: float  # the 1 - LEVEL quantile
     rival_wins: float  # share of resamples in which the rival scored as well or better
+    rival_at_floor: bool = False  # the rival itself reaches the noise floor: nothing is left that could prefer either
 
     @property
     def decided(self) -> bool:
-        return self.lower > 0.0
+        return self.lower > 0.0 and not self.rival_at_floor
 
     def as_json(self) -> dict:
         return {"rival": self.rival, "margin": self.share, "margin_lower": self.lower, "margin_upper": self.upper,
-                "rival_wins": self.rival_wins, "decided": self.decided}
+                "rival_wins": self.rival_wins, "rival_at_floor": self.rival_at_floor, "decided": self.decided}
 
 
 def resamples(n: int, n_boot: int = N_BOOT, seed: int = SEED) -> np.ndarray:
