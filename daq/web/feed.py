@@ -43,24 +43,35 @@ PAGE_ROUND_TRIP = "(frame built -> drawn)"  # a latency book entry of its own: t
 
 
 class LatencyBook:
-    """Display latency per stream: a sample's host time to the page's acknowledgement that it is drawn."""
+    """Display latency per stream: a sample's host time to the page's acknowledgement that it is drawn.
+
+    Each stream keeps its last ``keep`` latencies in a ring of float64 written through when the stream is
+    first seen, so its memory is resident at once (1.6 MB a stream). Why not a deque of floats: it held the
+    same bound in 4 times the memory and reached it only after ``keep`` acknowledgements (over an hour for a
+    page acknowledging 47 frames a second), growing 0.5 MB/min until then, which a soak cannot tell from a
+    leak (issue 29).
+    """
 
     def __init__(self, keep: int = 200_000) -> None:
-        self.by_stream: dict[str, deque[float]] = {}
+        self.by_stream: dict[str, np.ndarray] = {}
+        self.added: dict[str, int] = {}  # latencies ever added per stream (the ring's write position)
         self.keep = keep
         self.lock = threading.Lock()
 
     def add(self, stream: str, seconds: float) -> None:
         with self.lock:
-            q = self.by_stream.get(stream)
-            if q is None:
-                q = self.by_stream[stream] = deque(maxlen=self.keep)
-            q.append(seconds)
+            ring = self.by_stream.get(stream)
+            if ring is None:
+                ring = self.by_stream[stream] = np.full(self.keep, np.nan)  # every page touched now
+                self.added[stream] = 0
+            n = self.added[stream]
+            ring[n % self.keep] = seconds
+            self.added[stream] = n + 1
 
     def summary(self) -> dict[str, dict[str, float]]:
         """p50/p99/max in ms and the count, per stream."""
         with self.lock:
-            snap = {k: np.asarray(v) for k, v in self.by_stream.items()}
+            snap = {k: v[:min(self.added[k], self.keep)].copy() for k, v in self.by_stream.items()}
         out = {}
         for k, a in snap.items():
             if a.size:
@@ -69,8 +80,44 @@ class LatencyBook:
         return out
 
     def clear(self) -> None:
+        """Forget the figures; the rings stay (resident memory does not move)."""
         with self.lock:
-            self.by_stream.clear()
+            for k in self.added:
+                self.added[k] = 0
+
+
+class CycleRing:
+    """The last ``keep`` stick-slip cycles: run time and values, in a float64 ring taken whole at the first cycle.
+
+    Why not a deque of dicts: ~580 bytes a cycle instead of 64, and at the brake rig's 7 cycles/s it filled
+    its 20 000 only after 45 minutes, growing 0.26 MB/min until then (issue 29's soak); a page's new cycles
+    were found by scanning all of them.
+    """
+
+    def __init__(self, keep: int) -> None:
+        self.keep = keep
+        self.channels: tuple[str, ...] = ()
+        self.rows: np.ndarray | None = None  # (keep, 1 + channels): t, then each channel
+        self.seq = 0  # cycles ever added; cycle n (from 1) sits in row (n - 1) % keep
+
+    def add(self, t_run: np.ndarray, data: np.ndarray, channels: tuple[str, ...]) -> None:
+        if self.rows is None or channels != self.channels:
+            self.channels = channels
+            self.rows = np.full((self.keep, 1 + len(channels)), np.nan)
+        for t, row in zip(t_run, data, strict=True):
+            self.rows[self.seq % self.keep, 0] = t
+            self.rows[self.seq % self.keep, 1:] = row
+            self.seq += 1
+
+    def since(self, n: int) -> list[dict[str, float]]:
+        """Every cycle kept numbered above ``n``, oldest first, each with its number ``"n"``."""
+        if self.rows is None:
+            return []
+        out = []
+        for i in range(max(n, self.seq - self.keep), self.seq):
+            row = self.rows[i % self.keep]
+            out.append({"n": i + 1, "t": float(row[0]), **{c: float(v) for c, v in zip(self.channels, row[1:])}})
+        return out
 
 
 class BusFeed:
@@ -86,8 +133,7 @@ class BusFeed:
         self.streams: dict[str, StreamHistory] = {}
         self.events: deque[EventRow] = deque(maxlen=EVENT_RING)
         self.event_seq = 0
-        self.cycles: deque[dict[str, float]] = deque(maxlen=CYCLES_KEPT)  # each with its number "n"
-        self.cycle_seq = 0
+        self.cycles = CycleRing(CYCLES_KEPT)
         self.status: dict[str, Any] | None = None
         self.status_seq = 0
         self.latency = LatencyBook()
@@ -132,10 +178,7 @@ class BusFeed:
 
     def _add_cycles(self, b: Block) -> None:
         with self.lock:
-            for t, row in zip(b.t, b.data):
-                self.cycle_seq += 1
-                self.cycles.append({"n": self.cycle_seq, "t": float(t) - self.origin,
-                                    **{c: float(v) for c, v in zip(b.meta.channels, row)}})
+            self.cycles.add(b.t - self.origin, np.asarray(b.data, dtype=np.float64), tuple(b.meta.channels))
 
     def add_event(self, ev: BusEvent) -> None:
         with self.lock:
@@ -227,9 +270,8 @@ class ClientSession:
             if feed.status_seq != self.status_seq and feed.status is not None:
                 status, self.status_seq = feed.status, feed.status_seq
             scatter = self._scatter(now)
-            cycles = ([c for c in feed.cycles if c["n"] > self.cycle_cursor]
-                      if feed.cycle_seq > self.cycle_cursor else [])
-            self.cycle_cursor = feed.cycle_seq
+            cycles = feed.cycles.since(self.cycle_cursor) if feed.cycles.seq > self.cycle_cursor else []
+            self.cycle_cursor = feed.cycles.seq
         if not streams and not events and status is None and scatter is None and not cycles:
             return None
         self.seq += 1

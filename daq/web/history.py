@@ -99,9 +99,11 @@ class EnvelopeArchive:
         self.w = w0
         self.cap = cap
         self.n = 0
-        self.k = np.zeros(cap, np.int64)
-        self.lo = np.zeros((n_channels, cap))
-        self.hi = np.zeros((n_channels, cap))
+        # written through now (np.full, not np.zeros, whose pages become resident only as buckets fill): at 20
+        # buckets/s the archive took 27 min to fill, growing the web process ~0.4 MB/min (issue 29's soak)
+        self.k = np.full(cap, 0, np.int64)
+        self.lo = np.full((n_channels, cap), np.nan)
+        self.hi = np.full((n_channels, cap), np.nan)
 
     def add(self, t: np.ndarray, data: np.ndarray) -> None:
         """Fold samples in (times after everything added before)."""
@@ -156,7 +158,10 @@ class StreamHistory:
         """A block's samples (run time, (n, n_channels)); blocks arrive in time order per stream."""
         if t.size == 0:
             return
-        data = np.asarray(data, dtype=np.float64).reshape(t.size, len(self.meta.channels))
+        # a copy, never a view: a bus block's data is a view on its ZeroMQ message, whose receive buffer (shared by
+        # the messages received with it) a kept view holds alive. 120 s of views held ~250 MB of buffers for ~12 MB
+        # of samples, and more once a large message had grown the buffers (issue 29's soak: +100 MB at minute 24)
+        data = np.array(data, dtype=np.float64).reshape(t.size, len(self.meta.channels))
         self.blocks.append((t, data))
         self.archive.add(t, data)
         if self.first_t is None:

@@ -43,6 +43,10 @@ class WebCfg(BaseModel):
                                                                 "viewers can never take the operator's place")
     max_body_bytes: int = Field(1 << 20, ge=1024, le=1 << 28,
                                 description="request bodies above this get 413 as they arrive, never forwarded")
+    observer_burst: int = Field(30, ge=1, le=10_000, description="token-less API requests and WebSocket handshakes "
+                                                                 "one address may make at once (a page load: 2)")
+    observer_rate_hz: float = Field(2.0, gt=0, le=1000.0, description="... and then per second; the operator is "
+                                                                      "never limited (daq/web/limits.py)")
     status_s: float = Field(0.5, gt=0, description="how often the daemon's status is fetched")
     rcvhwm: int = Field(20_000, ge=100, description="bus blocks queued in the web process before it drops")
 

@@ -15,6 +15,11 @@ with CURVE a page is an observer unless it presents the operator token the daemo
 printed at start (``Authorization: Bearer TOKEN``; the page takes it from the URL's
 ``#token=`` fragment, which browsers never send to a server).
 
+Hostile viewers (issue 29, decision record 34): bodies over ``max_body_bytes`` are refused (413) as
+they arrive, token-less API requests and WebSocket handshakes are rate-limited per address (429;
+daq/web/limits.py), commands need the page's header and its Origin, and operators' pages have
+places of their own that viewers cannot fill.
+
 Protocol: stdin line 1 is the :class:`~daq.web.messages.WebCfg`; stdout (a duplicate of
 the original fd; anything printed goes to stderr) carries ``{"ready": ..., "url": ...}``
 once serving, then :class:`~daq.web.messages.PipeCommand` lines; stdin carries the
@@ -55,7 +60,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from daq.daemon.control import DuplicateKey, Reply, is_local_endpoint, loads_strict
 
 from .feed import BusFeed, ClientSession
-from .limits import BodyLimit
+from .limits import BodyLimit, ObserverRateLimit, TokenBuckets
 from .messages import Ack, ClientMessage, CommandBody, PipeCommand, PipeReply, Role, View, WebCfg
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -86,11 +91,16 @@ def _same_origin(origin: str | None, host: str | None) -> bool:
     return bool(host) and urlsplit(origin).netloc.lower() == host.lower()
 
 
-def _ws_token(ws: WebSocket) -> str | None:
-    """The operator token a page offered as a subprotocol (``daq.token.TOKEN``), as a Bearer value for role_for."""
-    offered = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")]
-    token = next((p.removeprefix(WS_TOKEN_PREFIX) for p in offered if p.startswith(WS_TOKEN_PREFIX)), None)
+def _subprotocol_token(offered: str) -> str | None:
+    """The operator token among offered subprotocols (``daq.token.TOKEN``), as a Bearer value for role_for."""
+    names = [p.strip() for p in offered.split(",")]
+    token = next((p.removeprefix(WS_TOKEN_PREFIX) for p in names if p.startswith(WS_TOKEN_PREFIX)), None)
     return f"Bearer {token}" if token else None
+
+
+def _ws_token(ws: WebSocket) -> str | None:
+    """The operator token a page offered as a subprotocol, as a Bearer value for role_for."""
+    return _subprotocol_token(ws.headers.get("sec-websocket-protocol", ""))
 
 
 def _refusal(error: str, code: str, status: int) -> JSONResponse:
@@ -182,14 +192,29 @@ class WebApp:
         self.link = link
         self.sessions: set[ClientSession] = set()
         self.operator_sessions: set[ClientSession] = set()
+        self.observer_buckets = TokenBuckets(cfg.observer_rate_hz, cfg.observer_burst)
         hosts = ["127.0.0.1", "localhost", "::1", "[::1]", cfg.host] if is_loopback_host(cfg.host) else ["*"]
         self.app = Starlette(
             routes=[Route("/", self.index), Route("/api/whoami", self.whoami), Route("/api/stats", self.stats),
                     Route("/api/latency/reset", self.reset_latency, methods=["POST"]),
                     Route("/api/command", self.command, methods=["POST"]), WebSocketRoute("/ws", self.ws),
                     Mount("/static", StaticFiles(directory=STATIC))],
-            middleware=[Middleware(BodyLimit, max_bytes=cfg.max_body_bytes),
+            middleware=[Middleware(ObserverRateLimit, buckets=self.observer_buckets, limited=self.rate_limited),
+                        Middleware(BodyLimit, max_bytes=cfg.max_body_bytes),
                         Middleware(TrustedHostMiddleware, allowed_hosts=hosts)])
+
+    def rate_limited(self, scope: Any) -> bool:
+        """Whether a request counts against its address's bucket: an API request or a WebSocket handshake
+        without the operator token (the page and its files never count; daq/web/limits.py says why)."""
+        path = scope.get("path", "")
+        if not (path.startswith("/api/") or path == "/ws"):
+            return False
+        headers = {k.lower(): v for k, v in scope.get("headers", [])}
+        if scope["type"] == "websocket":
+            given = _subprotocol_token(headers.get(b"sec-websocket-protocol", b"").decode("latin-1"))
+        else:
+            given = headers.get(b"authorization", b"").decode("latin-1") or None
+        return role_for(self.cfg, given) != "operator"
 
     async def index(self, request: Request) -> Response:
         return FileResponse(STATIC / "index.html", headers={"cache-control": "no-store"})
@@ -207,6 +232,7 @@ class WebApp:
                              "page_list": [{"frames_sent": s.frames_sent, "unacked": len(s.unacked)}
                                            for s in pages],
                              "bus_lost_blocks": self.feed.sub.stats.lost_blocks,
+                             "rate_limited": self.observer_buckets.refused,
                              "streams": samples})
 
     async def reset_latency(self, request: Request) -> Response:
