@@ -130,7 +130,8 @@ def test_a_second_demo_goes_to_the_next_free_folder(tmp_path):
 
 def test_bench_rig_option_is_checked_before_any_work():
     """`daq bench diagnose --rig` knows its cases; other benchmarks take no rig; one line, exit 2 each."""
-    for args, field in ((["diagnose", "--rig", "drum-pendulum"], "drum-pendulum"), (["sim", "--rig", "belt-ndof"], "--rig")):
+    for args, field in ((["diagnose", "--rig", "drum-pendulum"], "drum-pendulum"), (["sim", "--rig", "belt-ndof"], "--rig"),
+                        (["archive", "--records", "0"], "--records"), (["sim", "--records", "3"], "--records")):
         r = daq("bench", *args)
         assert r.returncode == 2, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and field in r.stderr, r.stderr

@@ -27,6 +27,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.steps < 1:
             raise InputError("bench", "--steps", f"{args.steps}: at least 1")
         options["steps"] = args.steps
+    if args.records is not None:
+        if args.name != "archive":
+            raise InputError("bench", "--records", f"only `daq bench archive` takes a number of records (not {args.name!r})")
+        if args.records < 1:
+            raise InputError("bench", "--records", f"{args.records}: at least 1")
+        options["records"] = args.records
     if args.name == "rsf":
         options["progress"] = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)
     result, report = run_bench(args.name, **options)
@@ -43,4 +49,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     bench.add_argument("--json", action="store_true")
     bench.add_argument("--rig", help="diagnose: brake-2dof (default) or belt-ndof (issue 14's long record)")
     bench.add_argument("--steps", type=int, help="rsf: velocity steps in the batch (default 10 000)")
+    bench.add_argument("--records", type=int, help="archive: recordings in the job (default 10); a job's fixed cost "
+                                                   "(the cluster, its workers' imports) spreads over them")
     bench.set_defaults(func=cmd_bench)
