@@ -261,7 +261,7 @@ def test_the_latency_book_holds_its_bound_in_memory_taken_at_once():
     book = LatencyBook(keep=1000)
     book.add("laser", 0.05)
     ring = book.by_stream["laser"]
-    assert ring.size == 1000 and ring.dtype == float  # the whole ring at the first sample
+    assert ring.capacity == 1000 and ring._ring.nbytes == 8000  # the whole ring at the first sample
     for i in range(2500):
         book.add("laser", i * 1e-3)
     s = book.summary()["laser"]

@@ -27,7 +27,6 @@ import json
 import multiprocessing
 import threading
 import time
-from collections import deque
 from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Literal
 
@@ -37,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from daq.config import RigConfig
 from daq.io.stream_format import Block, BusEvent, StreamMeta
+from daq.signals import FloatRing
 from daq.streaming.bus import Publisher, Subscriber
 
 from .align import HoldBuffer, Pending
@@ -112,8 +112,8 @@ class OnlineEstimator:
         self._fit_future: Future | None = None
         self.last_fit: RunningLawFit | None = None
         # per published block: the oldest sample's latency and the work it took (for benchmarks, monitoring)
-        self.latency_log: deque[float] = deque(maxlen=1_000_000)
-        self.work_log: deque[float] = deque(maxlen=1_000_000)
+        self.latency_log = FloatRing(1_000_000)
+        self.work_log = FloatRing(1_000_000)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from daq.estimation.cycles import CYCLE_STREAM
 from daq.io.stream_format import Block, BusEvent
+from daq.signals import FloatRing
 from daq.streaming.bus import Subscriber
 
 from .history import StreamHistory
@@ -45,16 +46,14 @@ PAGE_ROUND_TRIP = "(frame built -> drawn)"  # a latency book entry of its own: t
 class LatencyBook:
     """Display latency per stream: a sample's host time to the page's acknowledgement that it is drawn.
 
-    Each stream keeps its last ``keep`` latencies in a ring of float64 written through when the stream is
-    first seen, so its memory is resident at once (1.6 MB a stream). Why not a deque of floats: it held the
-    same bound in 4 times the memory and reached it only after ``keep`` acknowledgements (over an hour for a
-    page acknowledging 47 frames a second), growing 0.5 MB/min until then, which a soak cannot tell from a
-    leak (issue 29).
+    Each stream keeps its last ``keep`` latencies in a FloatRing made when the stream is first seen, so its
+    memory is resident at once (1.6 MB a stream). Why not a deque of floats: it held the same bound in 4 times
+    the memory and reached it only after ``keep`` acknowledgements (over an hour for a page acknowledging 47
+    frames a second), growing 0.5 MB/min until then, which a soak cannot tell from a leak (issue 29).
     """
 
     def __init__(self, keep: int = 200_000) -> None:
-        self.by_stream: dict[str, np.ndarray] = {}
-        self.added: dict[str, int] = {}  # latencies ever added per stream (the ring's write position)
+        self.by_stream: dict[str, FloatRing] = {}
         self.keep = keep
         self.lock = threading.Lock()
 
@@ -62,16 +61,13 @@ class LatencyBook:
         with self.lock:
             ring = self.by_stream.get(stream)
             if ring is None:
-                ring = self.by_stream[stream] = np.full(self.keep, np.nan)  # every page touched now
-                self.added[stream] = 0
-            n = self.added[stream]
-            ring[n % self.keep] = seconds
-            self.added[stream] = n + 1
+                ring = self.by_stream[stream] = FloatRing(self.keep)
+            ring.append(seconds)
 
     def summary(self) -> dict[str, dict[str, float]]:
         """p50/p99/max in ms and the count, per stream."""
         with self.lock:
-            snap = {k: v[:min(self.added[k], self.keep)].copy() for k, v in self.by_stream.items()}
+            snap = {k: v.values() for k, v in self.by_stream.items()}
         out = {}
         for k, a in snap.items():
             if a.size:
@@ -82,8 +78,8 @@ class LatencyBook:
     def clear(self) -> None:
         """Forget the figures; the rings stay (resident memory does not move)."""
         with self.lock:
-            for k in self.added:
-                self.added[k] = 0
+            for ring in self.by_stream.values():
+                ring.clear()
 
 
 class CycleRing:
