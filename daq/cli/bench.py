@@ -13,6 +13,9 @@ from daq.errors import InputError
 from daq.io.jsonout import print_json
 
 
+COUNTS = {"steps": ("rsf", "steps"), "records": ("archive", "records")}  # option -> (its benchmark, what it counts)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.name not in BENCHES:
         raise InputError("bench", args.name, f"unknown benchmark (have: {', '.join(BENCHES)})")
@@ -21,18 +24,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.name != "diagnose":
             raise InputError("bench", "--rig", f"only `daq bench diagnose` takes a rig (not {args.name!r})")
         options = {"rig": args.rig, "progress": lambda msg: print(msg, file=sys.stderr, flush=True)}
-    if args.steps is not None:
-        if args.name != "rsf":
-            raise InputError("bench", "--steps", f"only `daq bench rsf` takes a number of steps (not {args.name!r})")
-        if args.steps < 1:
-            raise InputError("bench", "--steps", f"{args.steps}: at least 1")
-        options["steps"] = args.steps
-    if args.records is not None:
-        if args.name != "archive":
-            raise InputError("bench", "--records", f"only `daq bench archive` takes a number of records (not {args.name!r})")
-        if args.records < 1:
-            raise InputError("bench", "--records", f"{args.records}: at least 1")
-        options["records"] = args.records
+    for option, (owner, what) in COUNTS.items():  # counts one benchmark takes: checked before any work
+        n = getattr(args, option)
+        if n is None:
+            continue
+        if args.name != owner:
+            raise InputError("bench", f"--{option}", f"only `daq bench {owner}` takes a number of {what} "
+                                                     f"(not {args.name!r})")
+        if n < 1:
+            raise InputError("bench", f"--{option}", f"{n}: at least 1")
+        options[option] = n
     if args.name == "rsf":
         options["progress"] = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)
     result, report = run_bench(args.name, **options)
