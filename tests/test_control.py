@@ -28,7 +28,11 @@ from daq.daemon.control import (
 )
 from daq.errors import InputError
 
-pytestmark = pytest.mark.skipif(not zmq.has("curve"), reason="libzmq built without CURVE")
+
+
+def test_libzmq_has_curve():
+    """The daemon's keys need CURVE; pyzmq's wheels bundle it. A build without it fails here, not silently later."""
+    assert zmq.has("curve")
 
 ANY_PORT = "tcp://127.0.0.1:*"  # the OS picks a free port; the server reports it as .endpoint
 
