@@ -274,10 +274,9 @@ class SerialMotorRegulator(MotorDrive):
         self.request("RST")
 
     def status(self) -> Status:
-        st = Status.parse(self.request("STAT?"))
-        if st.state == "WATCHDOG":
-            self.log.emit("watchdog", "regulator watchdog has stopped the belt")
-        return st
+        """STAT?, parsed. A latched state is reported once, by whoever watches the regulator (the daemon polls it),
+        not here on every read: a read every 0.2 s would write five events a second into the recording."""
+        return Status.parse(self.request("STAT?"))
 
     def identify(self) -> str:
         return self.request("ID?")

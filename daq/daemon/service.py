@@ -51,7 +51,6 @@ from daq.sim.effectset import parse_effect
 from daq.streaming.bus import Subscriber
 from daq.streaming.recorder import MIN_FREE_BYTES, free_space_refusal
 from drivers.factory import build_drivers
-from drivers.motor_protocol import Status
 from sim_backends.process import SimBenchProcess, cross_process_wiring
 
 from .acquisition import Acquisition, AcquisitionCfg
@@ -362,7 +361,7 @@ class Daemon:
         """STAT? from the regulator (and the simulated bench's watchdog trip counter); kept for status."""
         now = utcnow()
         try:
-            st = self._quiet_status()
+            st = self.drivers.motor.status()
         except Exception as exc:  # noqa: BLE001 - unreadable is itself the answer
             reading = RegulatorReading(error=f"{type(exc).__name__}: {exc}", read_at=now)
         else:
@@ -377,13 +376,6 @@ class Daemon:
         self.regulator = reading
         return reading
 
-    def _quiet_status(self) -> Status:
-        """STAT? without the driver's own "watchdog" log event (it adds one per read while latched: polled at
-        5 Hz that would be 5 events a second in the recording); the transition is reported here instead."""
-        motor = self.drivers.motor
-        request = getattr(motor, "request", None)
-        return Status.parse(request("STAT?")) if request is not None else motor.status()
-
     def _regulator_loop(self) -> None:
         """Poll the regulator while the daemon runs, and report the moment it latches.
 
@@ -396,7 +388,7 @@ class Daemon:
         """
         while not self._rate_stop.wait(REGULATOR_POLL_S):
             try:
-                st = self._quiet_status()
+                st = self.drivers.motor.status()
             except Exception:  # noqa: BLE001, S112 - unreachable regulator: the motor stream's counters say so
                 continue
             before = self.regulator
