@@ -204,6 +204,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
               f"drop {c['record']['drop_median']:.3g} / {c['model']['drop_median']:.3g} {c['unit']}, "
               f"slip {c['record']['slip_s_median']:.3g} / {c['model']['slip_s_median']:.3g} s, "
               f"mean period {c['record']['period_s_mean']:.3g} / {c['model']['period_s_mean']:.3g} s")
+        ld = c["loading"]
+        print(f"  loading in the stick, early / late, over the drive's speed: record {ld['early_record']:.2f} / "
+              f"{ld['late_record']:.2f}, model {ld['early_model']:.2f} / {ld['late_model']:.2f} (1: loaded as a "
+              f"stuck slider is; lower late: it creeps before it slips)")
+        if res["by_cycle_phase"]:
+            print("  error by cycle phase (share of samples): " + ", ".join(
+                f"{k} {v['error']:.3g} {res['error_unit']} ({v['fraction']:.0%})" for k, v in res["by_cycle_phase"].items()))
+        mo = res["motion"]
+        print(f"  ringing (strongest line within 2x of the rig's lowest natural frequency {mo['natural_Hz']:.3g} Hz, "
+              f"mains masked): record {mo['line_Hz_record']:.3g} Hz, model {mo['line_Hz_model']:.3g} Hz with "
+              f"{mo['band_power_model_over_record']:.2g} of the record's power there")
         print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))
     return 0
 

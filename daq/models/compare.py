@@ -6,7 +6,11 @@ belt-speed bands), by time and by signal says *where*, which is what points to
 the missing physics. Forward-simulation invariants (stick-slip frequency, slip
 amplitude, stick fraction, spectrogram) and the cycles' distributions (stick time,
 force drop, slip duration, period: cycle_features.py) judge the model on cycle
-features, which phase drift cannot swamp.
+features, which phase drift cannot swamp. Three readings say where in the cycle and in the
+mechanics a model fails (issue 31: a measured record the catalog did not explain): the error by
+cycle phase (slip, loading, at the peak load, read from the record), the loading rates early and
+late in the stick against the drive's speed (a stuck slider is loaded at the drive's speed; later
+slower is creep), and the motion's spectral line against the rig file's lowest natural frequency.
 
 Decision record: docs/decisions/0009-held-out-scoring-and-noise-floor.md.
 """
@@ -16,15 +20,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.signal import medfilt, welch
 
 from daq.physics.contact import AUX
 from daq.signals import dominant_frequency, paper_spectrogram
 
 from . import robust
-from .cycle_features import load_cycles, side_by_side
+from .cycle_features import PHASES, cycle_phases, load_cycles, side_by_side
 from .session import Fitted, Session
 
 N_TIME_BINS = 10
+# within this of 50 or 60 Hz (or their 2nd, 3rd harmonics) a line is the mains' hum on the gauge, not motion (the
+# lab's 42 um/s and 1.1 mm/s records: 49.99 and 50.00 Hz, the strongest line of both)
+MAINS_TOLERANCE = 0.01
 CYCLE_SEED = 7  # the noise put on the free run before its cycles are read (fixed: the same JSON every run)
 OUTLIER_SIGMAS = 5.0  # a residual this many noise levels off counts as an outlier (Gaussian noise: 6e-7 of samples)
 ERROR_DEFINITION = ("rms of model - measured of the primary signal on the held-out windows (every third short "
@@ -141,11 +149,8 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     meas_inv = invariants(session, tt, m.outputs[primary][fidx], m.v_rel[fidx])
     model_inv = invariants(session, tt, pred[primary], aux[:, AUX.V_REL])
     out["invariants"] = {k: {"measured": meas_inv[k], "model": model_inv[k]} for k in meas_inv}
-    # the free run read as the record is: with the record's noise on it (fixed seed), by the same rule
-    sigma = m.sigma[primary]
-    noisy = pred[primary] + np.random.default_rng(CYCLE_SEED).normal(0.0, sigma, pred[primary].size)
-    cyc_rec, cyc_model = load_cycles(tt, m.outputs[primary][fidx], sigma), load_cycles(tt, noisy, sigma)
-    out["cycles"] = {**side_by_side(cyc_rec, cyc_model), "signal": primary, "unit": m.units[primary]}
+    readings, (cyc_rec, cyc_model) = cycle_readings(session, fitted, idx, res[primary], fidx, pred[primary])
+    out.update(readings)
     try:
         ts, fm = spectral_line(tt, m.outputs[primary][fidx])
         _, fs = spectral_line(tt, pred[primary])
@@ -155,3 +160,85 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
     out["_plot"] = {"idx": idx, "res": res, "fidx": fidx, "pred": pred, "states": states, "aux": aux,
                     "cycles": (cyc_rec, cyc_model)}
     return out
+
+
+def loading(record: dict[str, np.ndarray], model: dict[str, np.ndarray], drive_speed: float) -> dict:
+    """The medians of the loading rates early and late in the stick (cycle_features.loading_rates) over the drive's
+    speed, record and model: 1 where the contact holds and the mechanics are the rig file's, less late where the
+    slider creeps before it slips. NaN without cycles or without a drive."""
+    def ratio(c: dict[str, np.ndarray], k: str) -> float:
+        x = c[k][np.isfinite(c[k])]
+        return float(np.median(x) / drive_speed) if x.size and drive_speed > 0.0 else float("nan")
+    return {"drive_speed": drive_speed,
+            **{f"{k}_{who}": ratio(c, f"load_rate_{k}") for who, c in (("record", record), ("model", model))
+               for k in ("early", "late")}}
+
+
+def by_cycle_phase(cycles: dict[str, np.ndarray], at: np.ndarray, n: int, res: np.ndarray) -> dict:
+    """The error (rms of model - measured) of the residual samples ``res`` at ``at`` (indices into the ``n``
+    samples the record's ``cycles`` were read from) per cycle phase, and each phase's share of the samples; empty
+    where the record has no cycles."""
+    code = cycle_phases(n, cycles)
+    ok = (at >= 0) & (at < n)
+    ph = np.where(ok, code[np.clip(at, 0, n - 1)], 0)
+    return {name: {"error": _rms(res[ph == c]), "fraction": float(np.mean(ph == c))}
+            for c, name in PHASES.items() if np.any(ph == c)}
+
+
+def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[str, list[float]]) -> dict:
+    """Where the record and the model ring: the strongest line of each within a factor 2 of the rig's lowest natural
+    frequency (its mechanics without friction, SimRig.modes_hz), the mains' lines masked (MAINS_TOLERANCE), and the
+    model's power in that band over the record's. Why a band: the strongest line of the whole spectrum is the cycle,
+    the drift or the hum (the lab's records: 50 Hz at 42 um/s, a 0.5 Hz wander at 1.1 mm/s); near the natural
+    frequency it is the motion, and a record that rings off it while the model rings on it (4.3 mm/s: 56.9 Hz
+    against 43.1 Hz) has mechanics other than the rig file's, or a contact that adds stiffness."""
+    natural = min(next(iter(modes_hz.values()))) if modes_hz else float("nan")
+    out = {"natural_Hz": natural, "band_Hz": [natural / 2.0, natural * 2.0], "line_Hz_record": float("nan"),
+           "line_Hz_model": float("nan"), "band_power_model_over_record": float("nan")}
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if not np.isfinite(natural) or natural * 2.0 >= rate / 2.0 or t.size < 64:
+        return out
+    spectra = []
+    for x in (record, model):
+        f, pxx = welch(medfilt(x, 5) - np.mean(x), fs=rate, nperseg=min(x.size, int(8.0 * rate)))
+        spectra.append(pxx)
+    band = (f >= natural / 2.0) & (f <= natural * 2.0)
+    for mains in (50.0, 60.0):
+        for h in (1, 2, 3):
+            band &= np.abs(f / (mains * h) - 1.0) > MAINS_TOLERANCE
+    if not band.any():
+        return out
+    out["line_Hz_record"] = float(f[band][np.argmax(spectra[0][band])])
+    out["line_Hz_model"] = float(f[band][np.argmax(spectra[1][band])])
+    out["band_power_model_over_record"] = float(spectra[1][band].sum() / max(spectra[0][band].sum(), 1e-300))
+    return out
+
+
+def where_it_lives(session: Session, fitted: Fitted) -> dict:
+    """compare's readings of where in the cycle and in the mechanics a fitted model fails (cycle_readings), for
+    diagnose to state when no catalog effect explains the error, or only part of it: by_cycle_phase, loading,
+    motion, and the cycles' summaries of record and model."""
+    idx, res, _ = residual_samples(session, fitted)
+    fidx, pred, _, _ = session.free_run(fitted)
+    readings = cycle_readings(session, fitted, idx, res[session.primary], fidx, pred[session.primary])[0]
+    cycles = readings["cycles"]
+    return {"by_cycle_phase": readings["by_cycle_phase"], "loading": cycles["loading"], "motion": readings["motion"],
+            "cycles": {"record": cycles["record"], "model": cycles["model"]}}
+
+
+def cycle_readings(session: Session, fitted: Fitted, idx: np.ndarray, res: np.ndarray, fidx: np.ndarray,
+                   pred: np.ndarray) -> tuple[dict, tuple[dict, dict]]:
+    """From the primary signal's residual samples (``res`` at ``idx``) and the free run (``pred`` at ``fidx``): the
+    cycles record / model side by side with their loading, the error by cycle phase, the ringing; and the two
+    cycle tables (for the figure). The free run is read with the record's noise on it (fixed seed), by the same
+    rule as the record."""
+    m, primary = session.m, session.primary
+    tt, x = m.t[fidx], m.outputs[primary][fidx]
+    noisy = pred + np.random.default_rng(CYCLE_SEED).normal(0.0, m.sigma[primary], pred.size)
+    cyc_rec, cyc_model = load_cycles(tt, x, m.sigma[primary]), load_cycles(tt, noisy, m.sigma[primary])
+    drive = float(np.median(np.abs(m.drive_command[fidx])))
+    out = {"cycles": {**side_by_side(cyc_rec, cyc_model), "signal": primary, "unit": m.units[primary],
+                      "loading": loading(cyc_rec, cyc_model, drive)},
+           "by_cycle_phase": by_cycle_phase(cyc_rec, idx - fidx[0], fidx.size, res),
+           "motion": motion(tt, x, noisy, fitted.problem.sim(fitted.values).modes_hz())}
+    return out, (cyc_rec, cyc_model)

@@ -13,7 +13,12 @@ spike is no peak); a slip starts at the last sample within ``ONSET_SIGMAS`` nois
 the valley. Per cycle: ``drop`` = peak - valley, ``slip_s`` its duration, ``stick_s`` from the valley to the next
 slip's start, ``creep_s`` the part of that spent at the peak load (within ``ONSET_SIGMAS``: a contact that
 creeps before it slips holds its load while it moves; a linear rise spends 2 sigma / its loading rate there
-anyway, the same on both sides of a comparison), ``period_s`` slip start to slip start. Why a slip's start and
+anyway, the same on both sides of a comparison), ``period_s`` slip start to slip start, and the loading rates
+``load_rate_early`` / ``load_rate_late``: the load's slope (least squares) over the first and the last third of the
+stick. Why the two rates: a stuck slider is loaded at the drive's speed (the spring's extension, or the slider
+carried by the belt, grows at V), so early / V near 1 says the rig file's mechanics hold while the contact holds,
+and late / V well below the early one says the slider moves before it slips: creep, which a contact law that
+holds until its static level cannot make (the lab's 42 um/s record: ~1 early, ~0.1 late). Why a slip's start and
 not its peak: the lab's 42 um/s record plateaus at its peak for ~0.2 s before it drops (the peak of a noisy
 plateau falls anywhere on it, and "slips" of 0.2 s were read). The live detector
 (daq/estimation/cycles.py) reads cycles from the estimator's v_rel instead; this one needs only the record.
@@ -26,18 +31,24 @@ from scipy.signal import medfilt
 
 PROMINENCE_SIGMAS = 6.0  # a drop smaller than this many noise levels is not told from noise on a 2 kHz record
 ONSET_SIGMAS = 2.0  # the load has left its peak when it is this many noise levels below it
-FEATURES = ("stick_s", "creep_s", "drop", "slip_s", "period_s")
+FEATURES = ("stick_s", "creep_s", "drop", "slip_s", "period_s", "load_rate_early", "load_rate_late")
+PHASES = {1: "slip", 2: "loading", 3: "at the peak load"}  # cycle_phases' codes (0: outside any cycle)
+INDEX_KEYS = ("i_start", "i_valley", "i_reached", "i_next")  # a cycle's bounds (load_cycles)
+MIN_THIRD = 3  # samples a third of a stick needs for its loading rate (else NaN)
 
 
 def load_cycles(t: np.ndarray, x: np.ndarray, sigma: float) -> dict[str, np.ndarray]:
     """Per cycle of the load signal ``x`` (noise level ``sigma``, same unit): stick_s, creep_s, drop, slip_s,
-    period_s, the slip's start time ``t`` and the peak load ``peak``; empty arrays when fewer than three peaks
-    stand out. A cycle runs from one slip's start to the next's."""
+    period_s, load_rate_early and load_rate_late [unit/s], the slip's start time ``t`` and the peak load ``peak``,
+    and the sample indices that bound its phases (``i_start``, ``i_valley``, ``i_reached``, ``i_next``: slip start,
+    slip end, peak load reached, next slip start); empty arrays when fewer than three peaks stand out. A cycle runs
+    from one slip's start to the next's."""
     x = np.asarray(x, dtype=float)
     xs = medfilt(x, 5) if x.size >= 5 else x
     peaks, valleys = turning_points(xs, PROMINENCE_SIGMAS * max(sigma, 1e-300))
     if peaks.size < 3:
-        return {k: np.zeros(0) for k in (*FEATURES, "t", "peak")}
+        empty = {k: np.zeros(0) for k in (*FEATURES, "t", "peak")}
+        return {**empty, **{k: np.zeros(0, dtype=int) for k in INDEX_KEYS}}
     near = ONSET_SIGMAS * sigma
     # the slip starts where the load leaves its peak for good: the last sample within ``near`` of it before the valley
     starts = np.array([p + int(np.flatnonzero(xs[p:v + 1] >= xs[p] - near)[-1]) for p, v in zip(peaks[:-1], valleys)])
@@ -45,8 +56,36 @@ def load_cycles(t: np.ndarray, x: np.ndarray, sigma: float) -> dict[str, np.ndar
     reached = np.array([v + int(np.flatnonzero(xs[v:s + 1] >= xs[p] - near)[0])
                         for v, s, p in zip(valleys[:-1], starts[1:], peaks[1:-1])])
     s0, s1, v0 = starts[:-1], starts[1:], valleys[:-1]
+    early, late = loading_rates(t, xs, v0, s1)
     return {"t": t[s0], "peak": xs[peaks[:-2]], "drop": xs[peaks[:-2]] - xs[v0], "slip_s": t[v0] - t[s0],
-            "stick_s": t[s1] - t[v0], "creep_s": t[s1] - t[reached], "period_s": t[s1] - t[s0]}
+            "stick_s": t[s1] - t[v0], "creep_s": t[s1] - t[reached], "period_s": t[s1] - t[s0],
+            "load_rate_early": early, "load_rate_late": late,
+            "i_start": s0, "i_valley": v0, "i_reached": reached, "i_next": s1}
+
+
+
+def loading_rates(t: np.ndarray, x: np.ndarray, v0: np.ndarray, s1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The load's least-squares slope over the first and the last third of each stick (valley ``v0`` to the next
+    slip's start ``s1``); NaN where a third has fewer than MIN_THIRD samples."""
+    early, late = np.full(v0.size, np.nan), np.full(v0.size, np.nan)
+    for c, (a, b) in enumerate(zip(v0, s1)):
+        third = (b - a + 1) // 3
+        if third >= MIN_THIRD:
+            early[c] = np.polyfit(t[a:a + third] - t[a], x[a:a + third], 1)[0]
+            late[c] = np.polyfit(t[b - third + 1:b + 1] - t[b], x[b - third + 1:b + 1], 1)[0]
+    return early, late
+
+
+def cycle_phases(n: int, cycles: dict[str, np.ndarray]) -> np.ndarray:
+    """Per sample of the signal ``cycles`` was read from (``n`` samples), its phase code (PHASES): slip (slip start
+    to valley), loading (valley to the peak load reached), at the peak load (to the next slip's start); 0 outside
+    every cycle. Where a model's error lives in the cycle, read from the record alone."""
+    code = np.zeros(n, dtype=np.int8)
+    for a, v, r, b in zip(*(cycles[k] for k in INDEX_KEYS)):
+        code[a:v] = 1
+        code[v:r] = 2
+        code[r:b] = 3
+    return code
 
 
 def turning_points(x: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -79,7 +118,8 @@ def summary(cycles: dict[str, np.ndarray]) -> dict[str, float | int]:
     n = int(cycles["period_s"].size)
     out: dict[str, float | int] = {"cycles": n}
     for k in FEATURES:
-        q = np.quantile(cycles[k], [0.25, 0.5, 0.75]) if n else np.full(3, np.nan)
+        x = cycles[k][np.isfinite(cycles[k])]
+        q = np.quantile(x, [0.25, 0.5, 0.75]) if x.size else np.full(3, np.nan)
         out[f"{k}_q25"], out[f"{k}_median"], out[f"{k}_q75"] = (float(v) for v in q)
     out["period_s_mean"] = float(np.mean(cycles["period_s"])) if n else float("nan")
     return out

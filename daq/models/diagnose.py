@@ -31,6 +31,7 @@ from scipy import stats
 from daq.physics.effects import CATALOG
 
 from .candidates import Candidate, add_command, candidates_for
+from .compare import where_it_lives
 from .extensions import fit_extensions, keep_fits
 from .margins import MIN_EXCESS
 from .screening import column, linearise, predicted_gain
@@ -253,6 +254,7 @@ class Diagnosis:
     delivered: Fitted | None = None  # the same model as `model add` + `compare` fit it: what is promised
     search_total: float = 0.0  # the share of the excess the diagnosis's own fit removed
     rest: dict | None = None  # where the excess the promise leaves lives, when it leaves much (unexplained)
+    where: dict | None = None  # in the cycle and the mechanics, when nothing or only part is explained (compare's)
 
     @property
     def promised(self) -> Fitted:
@@ -302,6 +304,7 @@ class Diagnosis:
             "search_error": e0 - self.search_total * (e0 - self.floor),  # the diagnosis's own fit of the same model
             "search_reduction": self.search_total,
             "unexplained": self.rest,
+            "where": self.where,  # error by cycle phase, loading against the drive, ringing (compare.where_it_lives)
             "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
                             "step_reduction": c.step_reduction, "score": c.score, "error": c.error,
                             "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
@@ -499,6 +502,9 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     d = Diagnosis(base, floor, floors, first_scored, found, "", corr, sequence, first_screened,
                   current if sequence else None, verdicts, delivered, search_total)
     d.rest = unexplained(session, d) if found else None
+    if (not found and excess_ratio > MIN_EXCESS) or d.rest is not None:
+        say("where the model fails: cycle phases, loading, ringing")
+        d.where = where_it_lives(session, d.promised)
     d.summary = _summary(session, d, excess_ratio)
     return d
 
@@ -585,7 +591,7 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
             parts.append(f"That is only part: a form the catalog lacks, or another effect, holds the other "
                          f"{rest['share_left']:.0%}; it lives most in the held-out windows at {worst}, and follows "
                          f"{follows}.")
-        return " ".join(parts)
+        return " ".join(parts + where_text(d.where, unit))
     if excess_ratio <= MIN_EXCESS:
         return (f"No missing effect: the model's error ({e0:.3g} {unit}) is within {MIN_EXCESS:.0%} of the noise "
                 f"floor ({floor:.3g} {unit}).")
@@ -605,9 +611,9 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
         few = (f" Only {n_held} held-out windows: even if every one improved, the consistency test could not pass "
                f"(z {z_attainable(n_held):.1f} < {MIN_T}); a longer record (at least {windows_needed()} held-out windows, "
                f"about {math.ceil(windows_needed() * n_all / max(n_held, 1))} windows in all) can show it.")
-    return (f"The model's error ({e0:.3g} {unit}) is {above} the noise floor, but no catalog "
-            f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}{why}). "
-            f"The residual follows: {follows}.{few}")
+    return " ".join([f"The model's error ({e0:.3g} {unit}) is {above} the noise floor, but no catalog "
+                     f"effect explains it (best: '{best.label if best else '-'}', {best.reduction if best else 0:.0%}"
+                     f"{why}). The residual follows: {follows}.{few}"] + where_text(d.where, unit))
 
 
 def _rival(name: str) -> str:
@@ -625,3 +631,57 @@ def windows_needed() -> int:
     while z_attainable(n) < MIN_T:
         n += 1
     return n
+
+
+CREEP_LATE = 0.5  # a record loaded late in the stick at less than this share of the drive's speed creeps
+RINGS_OFF = 0.1  # a record ringing more than this share off the rig's natural frequency, where the model does not
+# the record's drops spread (quartiles over the median) more than this many times the model's free run read with the
+# record's noise, and more than MIN_SPREAD: cycles that vary beyond noise (the lab's 42 um/s record: 0.25 against
+# the seed model's 0.05)
+SPREAD_RATIO = 2.0
+MIN_SPREAD = 0.15
+
+
+def where_text(where: dict | None, unit: str) -> list[str]:
+    """Sentences for the summary from compare.where_it_lives: the cycle phase that carries most of the error, creep
+    the model lacks (loading late in the stick), ringing off the rig file's mechanics."""
+    if not where:
+        return []
+    out = []
+    phases = where["by_cycle_phase"]
+    if phases:
+        worst = max(phases, key=lambda k: phases[k]["error"])
+        out.append(f"In the cycle it lives most {'in the ' if worst != 'at the peak load' else ''}{worst} "
+                   f"({phases[worst]['error']:.3g} {unit}; " + ", ".join(
+                       f"{k} {v['error']:.3g}" for k, v in phases.items() if k != worst) + ").")
+    ld = where["loading"]
+    late_rec, late_mod = ld["late_record"], ld["late_model"]
+    if np.isfinite(late_rec) and late_rec < CREEP_LATE and not (np.isfinite(late_mod) and late_mod < CREEP_LATE):
+        model = (f"the model's {ld['early_model']:.2f} / {late_mod:.2f}" if np.isfinite(late_mod)
+                 else "the model has no sticks")
+        out.append(f"In the stick the record is loaded at {ld['early_record']:.2f} of the drive's speed early and "
+                   f"{late_rec:.2f} late ({model}): the slider creeps before it slips, and the model does not "
+                   f"(missing: creep in the contact law, in the stick's second half).")
+    rec, mod = where["cycles"]["record"], where["cycles"]["model"]
+    if rec["cycles"] and not mod["cycles"]:
+        out.append(f"The record has {rec['cycles']} cycles, the fitted model's free run none: the fit settles on "
+                   f"steady sliding and predicts the mean load (missing: what keeps the record cycling).")
+    elif rec["cycles"] and mod["cycles"]:
+        spread = {who: (c["drop_q75"] - c["drop_q25"]) / c["drop_median"] for who, c in (("record", rec), ("model", mod))}
+        if spread["record"] > SPREAD_RATIO * spread["model"] and spread["record"] > MIN_SPREAD:
+            out.append(f"The record's drops spread {spread['record']:.2f} of their median (quartiles), the model's "
+                       f"{spread['model']:.2f} with the same noise on it: the record's cycles vary more than noise "
+                       f"makes a regular cycle vary (missing: a contact that varies along the track, or a chaotic "
+                       f"or noise-driven cycle, which a model started from each window's state follows for about a "
+                       f"cycle).")
+    mo = where["motion"]
+    f_rec, f_nat, f_mod = mo["line_Hz_record"], mo["natural_Hz"], mo["line_Hz_model"]
+    if np.isfinite(f_rec) and np.isfinite(f_nat) and abs(f_rec / f_nat - 1.0) > RINGS_OFF \
+            and not (np.isfinite(f_mod) and abs(f_mod / f_rec - 1.0) <= RINGS_OFF / 2
+                     and mo["band_power_model_over_record"] > RINGS_OFF):
+        out.append(f"The record rings at {f_rec:.3g} Hz where the rig file's mechanics ring at {f_nat:.3g} Hz "
+                   f"((f / f0)^2 = {(f_rec / f_nat) ** 2:.2f}; the model: {f_mod:.3g} Hz at "
+                   f"{mo['band_power_model_over_record']:.2g} of the record's power there): a stiffer spring or a "
+                   f"lighter slider than the rig file's, or a contact that adds stiffness while the slider moves; "
+                   f"the same run at another spring stiffness tells them apart (missing: mechanics, in the slip).")
+    return out

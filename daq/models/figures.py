@@ -156,16 +156,22 @@ def cycles_figure(session: Session, result: dict, path: Path) -> None:
     """The cycles' distributions, record against the model's free run (compare's "cycles")."""
     rec, mod = result["_plot"]["cycles"]
     unit = result["cycles"]["unit"]
-    fig, axes = plt.subplots(1, 5, figsize=(18, 3.8), constrained_layout=True)
-    for ax, (key, label) in zip(axes, (("stick_s", "stick time [s]"), ("creep_s", "of it at the peak load [s]"),
-                                       ("drop", f"load drop [{unit}]"), ("slip_s", "slip duration [s]"),
-                                       ("period_s", "period [s]"))):
+    drive = result["cycles"]["loading"]["drive_speed"]
+    if drive > 0.0:  # the loading rates over the drive's speed: 1 where a stuck slider is loaded, less where it creeps
+        rec, mod = ({**c, "early": c["load_rate_early"] / drive, "late": c["load_rate_late"] / drive} for c in (rec, mod))
+    panels = (("stick_s", "stick time [s]"), ("creep_s", "of it at the peak load [s]"), ("drop", f"load drop [{unit}]"),
+              ("slip_s", "slip duration [s]"), ("period_s", "period [s]"))
+    if drive > 0.0:
+        panels += (("early", "loading, stick's 1st third / drive"), ("late", "loading, stick's last third / drive"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels), 3.8), constrained_layout=True)
+    for ax, (key, label) in zip(axes, panels):
         both = np.concatenate([rec[key], mod[key]])
+        both = both[np.isfinite(both)]
         if both.size:
             bins = np.linspace(np.min(both), np.max(both) + 1e-300, 30)
-            ax.hist(rec[key], bins=bins, alpha=0.6, label=f"record ({rec[key].size})")
-            ax.hist(mod[key], bins=bins, alpha=0.6, label=f"model free run ({mod[key].size})")
-            for x, c in ((rec[key], "C0"), (mod[key], "C1")):
+            for x, c, who in ((rec[key], "C0", "record"), (mod[key], "C1", "model free run")):
+                x = x[np.isfinite(x)]
+                ax.hist(x, bins=bins, alpha=0.6, color=c, label=f"{who} ({x.size})")
                 if x.size:
                     ax.axvline(np.median(x), color=c, ls="--", lw=1)
         ax.set_xlabel(label)
