@@ -12,9 +12,9 @@ import math
 from fractions import Fraction
 
 import numpy as np
-from scipy import signal
-from scipy.optimize import nnls
-from scipy.signal import savgol_filter
+
+# scipy is imported where it is used: the web page's process takes FloatRing from here and nothing of scipy, whose
+# import alone made it 69 MB larger (125 MB instead of 57 MB before any data, issue 29's soak)
 
 
 class FloatRing:
@@ -57,6 +57,8 @@ class FloatRing:
 def savgol(x: np.ndarray, half: int, deriv: int = 0, dt: float = 1.0, degree: int = 3, axis: int = -1) -> np.ndarray:
     """Centred Savitzky-Golay smoothing or derivative over +-half samples (zero phase, mode 'interp' at the
     ends); a window longer than the data is cut to the longest odd length that fits."""
+    from scipy.signal import savgol_filter
+
     size = np.shape(x)[axis]
     n = min(2 * half + 1, size - (1 - size % 2))
     return savgol_filter(x, n, min(degree, n - 1), deriv=deriv, delta=dt, mode="interp", axis=axis)
@@ -101,6 +103,8 @@ def timing_noise(residual: np.ndarray, speed: np.ndarray, bins: int = 8, min_ris
     0.24 ms; accel-sign missing, the samples: 0.32 ms). Measured on the brake's 100 Hz records with 0.2 ms of
     jitter, nothing / aging / accel-sign hidden: 0.192 / 0.193 / 0.194 ms; without jitter: 0 on all three.
     """
+    from scipy.optimize import nnls
+
     r = np.atleast_2d(np.asarray(residual, dtype=float))
     v = np.atleast_2d(np.asarray(speed, dtype=float))
     v2 = v ** 2
@@ -147,6 +151,7 @@ def resample_to(t: np.ndarray, x: np.ndarray, fs: float) -> tuple[np.ndarray, np
     fs_in = 1.0 / np.median(np.diff(t))
     if abs(fs_in - fs) / fs < 1e-9:
         return t, x
+    from scipy import signal
 
     fr = Fraction(fs / fs_in).limit_denominator(1000)
     y = signal.resample_poly(x - x.mean(), fr.numerator, fr.denominator) + x.mean()
@@ -158,6 +163,8 @@ def paper_spectrogram(t: np.ndarray, x: np.ndarray, fs: float = 100.0, nperseg: 
                       noverlap: int = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Paper 001's MATLAB ``spectrogram(signal, 512, 256, [], 1E2)``: Hamming window 512, overlap 256,
     nfft = max(256, 2^nextpow2(512)) = 512, at 100 Hz. Returns (f [Hz], t [s], PSD)."""
+    from scipy import signal
+
     ts, xs = resample_to(t, x, fs)
     nperseg = min(nperseg, xs.size)
     noverlap = min(noverlap, nperseg - 1)
@@ -169,6 +176,8 @@ def paper_spectrogram(t: np.ndarray, x: np.ndarray, fs: float = 100.0, nperseg: 
 
 def dominant_frequency(t: np.ndarray, x: np.ndarray, fmin: float = 0.5) -> float:
     """Frequency of the largest spectral peak above fmin (Welch, Hann)."""
+    from scipy import signal
+
     fs = 1.0 / np.median(np.diff(t))
     nper = min(x.size, int(fs * 8))
     f, p = signal.welch(x - x.mean(), fs=fs, nperseg=nper)

@@ -32,6 +32,7 @@ from daq.io.archive import catalog_new_file
 from daq.io.runfile import BlockRejected, RunWriter, WriterCfg
 from daq.io.stream_format import Block, BusEvent
 
+from . import heap
 from .bus import BusCfg, Subscriber
 
 MIN_FREE_BYTES = 64 << 20  # > 0.25 s at the 40 MB/s `daq bench bus` writes, plus room to close the file
@@ -252,6 +253,8 @@ def main(argv: list[str] | None = None) -> int:
                     orphaned.set()
                     rec.stop()
         threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
+    heap_stop = threading.Event()
+    heap.start(heap_stop)  # resident memory: what the recorder holds, not the high-water mark of its heap
     print(f"ready {args.endpoint} {writer.path}", flush=True)
     rc = 0
     try:
@@ -275,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = 1
     finally:
         rec.close()
+        heap_stop.set()
     _say(f"closed {writer.path} samples={writer.samples_written} lost_blocks={rec.sub.stats.lost_blocks}",
          sys.stderr)
     return rc

@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import deque
 from typing import Any
 
 import numpy as np
@@ -32,6 +31,8 @@ from .history import StreamHistory
 from .messages import EventRow, Frame, Scatter, StreamFrame, View
 
 EVENT_RING = 2000  # events kept for pages (drop-oldest)
+EVENT_DETAIL_BYTES = 2000  # of an event's detail, UTF-8, kept for pages
+EVENT_NAME_BYTES = 64  # of its kind and its source
 EVENTS_ON_CONNECT = 300  # a new page gets the newest this many
 MAX_EVENTS_PER_FRAME = 500
 SCATTER_S = 5.0  # friction against relative velocity over the last seconds
@@ -116,6 +117,47 @@ class CycleRing:
         return out
 
 
+class EventRing:
+    """The last ``keep`` events for pages, in fixed-size rows of one array written through when it is made.
+
+    Why not a deque of EventRow: a row took 1.1 kB (a ``friction_fit`` event's 405-character detail, the model and
+    its set of fields) only when its event came, so 2000 of them filled over 33 minutes at the estimator's one
+    event a second, growing the page's process 0.07 MB/min, which a soak cannot tell from a leak (issue 29).
+    Here the 4.3 MB are resident at once. A detail is kept to its first ``EVENT_DETAIL_BYTES`` of UTF-8 (2000
+    characters of ASCII, as before), a kind and a source to ``EVENT_NAME_BYTES``.
+    """
+
+    DTYPE = np.dtype([("t", "f8"), ("count", "i8"), ("has_count", "?"), ("kind", f"S{EVENT_NAME_BYTES}"),
+                      ("source", f"S{EVENT_NAME_BYTES}"), ("detail", f"S{EVENT_DETAIL_BYTES}")])
+
+    def __init__(self, keep: int) -> None:
+        self.keep = keep
+        self.rows = np.zeros(keep, self.DTYPE)
+        self.rows.view(np.uint8).fill(0)  # every page touched now (np.zeros' pages become resident only when written)
+        self.seq = 0  # events ever added; event n (from 1) sits in row (n - 1) % keep
+
+    def add(self, t: float, kind: str, source: str, detail: str, count: int | None) -> None:
+        self.rows[self.seq % self.keep] = (t, 0 if count is None else count, count is not None,
+                                           kind.encode()[:EVENT_NAME_BYTES], source.encode()[:EVENT_NAME_BYTES],
+                                           detail.encode()[:EVENT_DETAIL_BYTES])
+        self.seq += 1
+
+    def since(self, n: int, most: int) -> tuple[list[EventRow], int]:
+        """At most ``most`` events numbered above ``n``, oldest first, and how many above ``n`` are no longer kept."""
+        if self.seq <= n:
+            return [], 0
+        first = max(1, self.seq - self.keep + 1)
+        start = max(n + 1, first)
+        out = []
+        for i in range(start, min(self.seq, start + most - 1) + 1):
+            r = self.rows[(i - 1) % self.keep]
+            out.append(EventRow(seq=i, t=float(r["t"]), kind=r["kind"].decode(errors="ignore"),
+                                source=r["source"].decode(errors="ignore"),
+                                detail=r["detail"].decode(errors="ignore"),
+                                count=int(r["count"]) if r["has_count"] else None))
+        return out, max(0, first - n - 1)
+
+
 class BusFeed:
     """Subscribes to the daemon's bus (and the estimator's), keeps histories and events for the pages."""
 
@@ -127,8 +169,7 @@ class BusFeed:
             self.sub.sock.connect(ep)
         self.lock = threading.Lock()
         self.streams: dict[str, StreamHistory] = {}
-        self.events: deque[EventRow] = deque(maxlen=EVENT_RING)
-        self.event_seq = 0
+        self.events = EventRing(EVENT_RING)
         self.cycles = CycleRing(CYCLES_KEPT)
         self.status: dict[str, Any] | None = None
         self.status_seq = 0
@@ -178,9 +219,7 @@ class BusFeed:
 
     def add_event(self, ev: BusEvent) -> None:
         with self.lock:
-            self.event_seq += 1
-            self.events.append(EventRow(seq=self.event_seq, t=ev.host_time - self.origin, kind=ev.kind,
-                                        source=ev.source, detail=ev.detail[:2000], count=ev.count))
+            self.events.add(ev.host_time - self.origin, ev.kind, ev.source, ev.detail, ev.count)
 
     def set_status(self, status: dict[str, Any]) -> None:
         with self.lock:
@@ -200,7 +239,7 @@ class ClientSession:
         self.seq = 0
         self.k_sent: dict[str, int] = {}
         self.t_sent: dict[str, float] = {}  # newest sample time already sent, per stream
-        self.event_cursor = max(0, feed.event_seq - EVENTS_ON_CONNECT)
+        self.event_cursor = max(0, feed.events.seq - EVENTS_ON_CONNECT)
         self.status_seq = 0
         self.cycle_cursor = 0  # a new page gets every cycle kept
         self.scatter_at = -math.inf
@@ -277,12 +316,9 @@ class ClientSession:
                      events=events, events_dropped=dropped, status=status, scatter=scatter, cycles=cycles or None)
 
     def _new_events(self) -> tuple[list[EventRow], int]:
-        ring = self.feed.events
-        if not ring or ring[-1].seq <= self.event_cursor:
-            return [], 0
-        dropped = max(0, ring[0].seq - self.event_cursor - 1)
-        new = [e for e in ring if e.seq > self.event_cursor][:MAX_EVENTS_PER_FRAME]
-        self.event_cursor = new[-1].seq
+        new, dropped = self.feed.events.since(self.event_cursor, MAX_EVENTS_PER_FRAME)
+        if new:
+            self.event_cursor = new[-1].seq
         return new, dropped
 
     def _scatter(self, now: float) -> Scatter | None:

@@ -15,7 +15,10 @@ a second) gets an empty column so the page draws a break.
 Two stores per stream: the raw blocks of the last ``raw_s`` seconds (windows up to that
 length are decimated from the samples themselves) and an :class:`EnvelopeArchive` of
 the whole run at a coarser width that doubles whenever it fills (longer windows are
-decimated from it; its memory is bounded whatever the run's length).
+decimated from it; its memory is bounded whatever the run's length). The archive is read
+``ARCHIVE_SLICE`` buckets at a time, in place, so what a frame allocates does not grow
+with the run either (issue 29's soak: copies of the whole archive, made for every
+whole-run and 5-minute view, grew the process's heap ~1.5 MB per view cycle).
 
 Decision record: docs/decisions/0020-live-web-page.md.
 """
@@ -33,6 +36,8 @@ from daq.io.stream_format import StreamMeta
 RAW_S = 120.0  # seconds of raw samples kept per stream (windows up to this long use them)
 ARCHIVE_W0 = 0.05  # initial width of a whole-run envelope bucket [s]
 ARCHIVE_CAP = 32_768  # buckets before the archive halves its resolution
+ARCHIVE_SLICE = 4096  # buckets the archive is read in at once (a frame's and a halving's temporaries: this many,
+# never the whole archive)
 GAP_PERIODS = 5.0  # no sample for this many periods is a gap ...
 GAP_MIN_S = 0.5  # ... and never less than this
 GAP_IRREGULAR_S = 10.0  # a stream without a nominal rate has a gap after this long a silence
@@ -111,6 +116,15 @@ class EnvelopeArchive:
 
     def _append(self, c: Columns) -> None:
         """Append columns of width ``self.w``, merging the first into the last bucket if it continues it."""
+        merge = int(bool(self.n and c.n and c.k[0] == self.k[self.n - 1]))
+        if self.n + c.n - merge > self.cap:
+            self._halve()
+            return self._append(rebucket(c, self.w, math.inf))
+        self._put(c)
+
+    def _put(self, c: Columns) -> None:
+        """Write columns of width ``self.w`` after the last bucket (merging into it if the first continues it).
+        Room is the caller's to check."""
         i = 0
         if self.n and c.n and c.k[0] == self.k[self.n - 1]:  # the last bucket is still filling
             j = self.n - 1
@@ -118,23 +132,40 @@ class EnvelopeArchive:
             self.hi[:, j] = np.fmax(self.hi[:, j], c.hi[:, 0])
             i = 1
         m = c.n - i
-        if self.n + m > self.cap:
-            self._halve()
-            return self._append(rebucket(c, self.w, math.inf))
         self.k[self.n:self.n + m] = c.k[i:]
         self.lo[:, self.n:self.n + m] = c.lo[:, i:]
         self.hi[:, self.n:self.n + m] = c.hi[:, i:]
         self.n += m
 
+    def _slices(self, i0: int = 0) -> list[Columns]:
+        """The buckets from ``i0`` on as views, ``ARCHIVE_SLICE`` at a time (no copy of the archive)."""
+        return [Columns(self.w, self.k[a:b], self.lo[:, a:b], self.hi[:, a:b])
+                for a in range(i0, self.n, ARCHIVE_SLICE) for b in (min(a + ARCHIVE_SLICE, self.n),)]
+
     def _halve(self) -> None:
-        """Double the bucket width: pairs of buckets become one (the envelope is kept exactly)."""
-        c = rebucket(self.columns(), 2 * self.w, math.inf)
-        self.w *= 2
-        self.n = c.n
-        self.k[:c.n], self.lo[:, :c.n], self.hi[:, :c.n] = c.k, c.lo, c.hi
+        """Double the bucket width: pairs of buckets become one (the envelope is kept exactly). In place, a slice
+        at a time: a slice's merged buckets land at or before its start, so no bucket is overwritten unread."""
+        slices = list(self._slices())  # views at the old width
+        self.n, self.w = 0, 2 * self.w
+        for c in slices:
+            self._put(rebucket(c, self.w, math.inf))  # rebucket's arrays are new, never views of the archive
 
     def columns(self) -> Columns:
         return Columns(self.w, self.k[:self.n].copy(), self.lo[:, :self.n].copy(), self.hi[:, :self.n].copy())
+
+    def columns_from(self, t_from: float, dt: float, gap_s: float) -> Columns:
+        """Columns of width ``max(dt, w)`` from run time ``t_from`` on, read a slice at a time: what this allocates
+        is a slice's and the answer's, whatever the archive holds."""
+        dt = max(dt, self.w)
+        i0 = int(np.searchsorted(self.k[:self.n], math.floor(t_from / self.w)))
+        parts = [rebucket(c, dt, math.inf) for c in self._slices(i0)]
+        if len(parts) <= 1:
+            return _with_gaps(parts[0], gap_s) if parts else envelope(np.zeros(0), np.zeros((0, self.lo.shape[0])), dt,
+                                                                      gap_s)
+        # a column may straddle two slices: rebucket at the same width merges it (and inserts the gaps)
+        joined = Columns(dt, np.concatenate([p.k for p in parts]), np.concatenate([p.lo for p in parts], axis=1),
+                         np.concatenate([p.hi for p in parts], axis=1))
+        return rebucket(joined, dt, gap_s)
 
 
 class StreamHistory:
@@ -211,10 +242,7 @@ class StreamHistory:
         if t_from >= self.raw_from or self.raw_from == self.first_t:  # the raw blocks cover it (or all there is)
             t, d = self.raw_since(t_from)
             return envelope(t, d, dt, self.gap_s)
-        arch = self.archive.columns()
-        dt = max(dt, arch.dt)
-        keep = arch.k >= math.floor(t_from / arch.dt)
-        return rebucket(Columns(arch.dt, arch.k[keep], arch.lo[:, keep], arch.hi[:, keep]), dt, self.gap_s)
+        return self.archive.columns_from(t_from, dt, self.gap_s)
 
     def latest(self) -> dict[str, float] | None:
         """The newest sample of every channel (for the page's numbers), or None before the first."""

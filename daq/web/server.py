@@ -58,6 +58,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from daq.daemon.control import DuplicateKey, Reply, is_local_endpoint, loads_strict
+from daq.streaming import heap
 
 from .feed import BusFeed, ClientSession
 from .limits import BodyLimit, ObserverRateLimit, TokenBuckets
@@ -382,6 +383,7 @@ def main() -> int:
         logging.getLogger(name).addFilter(OneLineErrors())
     stop = threading.Event()
     threading.Thread(target=_status_loop, args=(link, feed, cfg.status_s, stop), name="status", daemon=True).start()
+    heap.start(stop)  # resident memory: what the process holds, not the high-water mark of its heap
 
     def watch() -> None:
         while not stop.wait(0.25):
