@@ -11,7 +11,9 @@ fresh catalog (nothing cached), as a user runs it:
 Each figure is the command's wall time: every path pays its process start, imports and numba cache loads; Dask
 also the cluster's start and its workers' own imports and cache loads (``dask_fixed_s``: the 1-worker job's time
 over the serial one's). The results must be equal on all three paths (``equal``). The numba cache is warm before
-the first timing (the first path would otherwise pay the compiles).
+the first timing (the first path would otherwise pay the compiles). All three commands run under the environment
+a LocalCluster's nanny gives its workers (``archive_jobs.WORKER_ENV``: one BLAS/OpenMP thread, glibc's trim
+threshold), so the serial path computes under the same settings as a worker does.
 
 Decision records: docs/decisions/0013-benchmarks-beside-same-run-baselines.md, docs/decisions/0033-archive-on-dask.md.
 """
@@ -30,7 +32,7 @@ from pathlib import Path
 from daq.config import load_rig
 from daq.io.archive import Catalog
 from daq.io.interchange import write_recording
-from daq.models.archive_jobs import warm_numba
+from daq.models.archive_jobs import WORKER_ENV, warm_numba
 from daq.models.spec import save_model, seed_model
 from daq.sim.run import simulate
 
@@ -58,7 +60,8 @@ def _job(folder: Path, catalog: Path, model: Path, *flags: str) -> tuple[list[di
     cmd = [sys.executable, "-m", "daq.cli.main", "archive", "diagnose", "--catalog", str(catalog), "--model",
            str(model), "--json", *flags]
     t0, c0 = time.perf_counter(), _cpu_children()
-    done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None, text=True, check=True)
+    done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None, text=True, check=True,
+                          env={**os.environ, **WORKER_ENV})
     return json.loads(done.stdout), time.perf_counter() - t0, _cpu_children() - c0
 
 

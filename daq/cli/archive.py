@@ -2,8 +2,10 @@
 
     daq archive scan DIR                          # every recording under DIR into the catalog beside it
     daq archive list --rig belt-ndof --since 2026-11-01 --where "ramp=seed" [--json]
-    daq archive status --model M.toml             # which recordings are not yet diagnosed with M
+    daq archive status --model M.toml [--kind compare]   # which recordings are not yet diagnosed (compared) with M
     daq archive diagnose --model M.toml [--where ...] [--scheduler tcp://HOST:PORT] [--workers N] [--recompute]
+    daq archive compare --model M.toml ...        # the same job, `daq compare`'s answer kept per recording
+    daq archive fit --model M.toml ...            # the same job, `daq fit`'s answer (and fitted model) kept
 
 The catalog is ``--catalog PATH``, else ``$DAQ_ARCHIVE``, else the first daq-archive.sqlite in the current folder or
 above (``scan``: in DIR or above, else a new one in DIR). Heavy modules (h5py, numpy, numba, dask) are imported
@@ -74,7 +76,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_status(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba, dask and the models only when the command runs
-    from daq.models.archive_jobs import status
+    from daq.models.archive_jobs import DONE, KINDS, status
 
     models = _models(args)
     with _catalog(args) as cat:
@@ -82,17 +84,19 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.json:
         print_json(res)
         return 0
+    done = DONE[args.kind]
     for m in res["models"]:
-        print(f"{m['model']} (digest {m['model_digest']}): {m['diagnosed']} of {m['recordings']} recording(s) of "
-              f"{m['rig']} diagnosed; not yet: {len(m['not_diagnosed'])}")
-        for r in m["not_diagnosed"]:
+        print(f"{m['model']} (digest {m['model_digest']}): of {m['recordings']} recording(s) of {m['rig']}, "
+              + ", ".join(f"{m[DONE[k]]} {DONE[k]}" for k in KINDS) + f"; not yet {done}: {len(m['not_' + done])}")
+        for r in m["not_" + done]:
             print(f"  {r['hash'][:12]}  {r['path']}")
     return 0
 
 
-def cmd_diagnose(args: argparse.Namespace) -> int:
+def cmd_job(args: argparse.Namespace) -> int:
+    """`daq archive diagnose`, `compare` and `fit`: one job, its kind from the command."""
     # heavy: numpy, scipy, numba, dask and the models only when the command runs
-    from daq.models.archive_jobs import match_models, run_diagnoses
+    from daq.models.archive_jobs import match_models, run_job, verdict
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")
@@ -101,19 +105,18 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     models = _models(args)
     with _catalog(args) as cat:
         rows = cat.rows(rig=args.rig, since=args.since, where=args.where)
-        print(f"archive diagnose: {len(rows)} recording(s) in {cat.path} against "
+        print(f"archive {args.kind}: {len(rows)} recording(s) in {cat.path} against "
               + "; ".join(m.describe() for m in models), file=sys.stderr)
         pairs = match_models(rows, models, say)
-        rep = run_diagnoses(cat, pairs, scheduler=args.scheduler, workers=args.workers, serial=args.serial,
-                            recompute=args.recompute, say=say)
+        rep = run_job(cat, pairs, kind=args.kind, scheduler=args.scheduler, workers=args.workers, serial=args.serial,
+                      recompute=args.recompute, say=say)
     if args.json:
         print_json([r.model_dump() for r in rep.rows])
         return 0
     for r in rep.rows:
-        verdict = (f"failed: {r.failure}" if r.failure else ("named " + ", ".join(r.named) if r.named else "nothing named")
-                   + ("; undecided " + "; ".join(" / ".join(u) for u in r.undecided) if r.undecided else ""))
-        err = f"{r.error:.4g} {r.error_unit} (floor {r.noise_floor:.4g})" if r.error is not None else ""
-        print(f"{r.hash[:12]}  {Path(r.path).name:28s} {verdict}  {err}{'  (cached)' if r.cached else ''}")
+        err = (f"  {r.error:.4g} {r.error_unit} (floor {r.noise_floor:.4g})"
+               if args.kind == "diagnose" and r.error is not None and r.noise_floor is not None else "")
+        print(f"{r.hash[:12]}  {Path(r.path).name:28s} {verdict(r)}{err}{'  (cached)' if r.cached else ''}")
     return 0
 
 
@@ -144,20 +147,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     select(p)
     p.set_defaults(func=cmd_list)
 
-    p = asub.add_parser("status", help="which recordings are not yet diagnosed with a model")
+    p = asub.add_parser("status", help="which recordings are not yet diagnosed (compared, fitted) with a model")
     p.add_argument("--model", action="append", required=True, help="model TOML (one per rig; repeatable)")
     p.add_argument("--where", action="append", default=[], metavar="KEY=VALUE", help="only rows that match")
+    p.add_argument("--kind", choices=("diagnose", "compare", "fit"), default="diagnose",
+                   help="whose missing recordings the table lists (default diagnose; --json has every kind's)")
     catalog(p)
     p.set_defaults(func=cmd_status)
 
-    p = asub.add_parser("diagnose", help="diagnose every catalogued recording with a model, on Dask; results kept")
-    p.add_argument("--model", action="append", required=True,
-                   help="model TOML (one per rig, repeatable: each recording gets its rig's model)")
-    catalog(p)
-    select(p)
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running Dask scheduler (default: a LocalCluster "
-                                                                   "on this machine)")
-    p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
-    p.add_argument("--serial", action="store_true", help="one recording after another in this process, no Dask")
-    p.add_argument("--recompute", action="store_true", help="ignore stored results")
-    p.set_defaults(func=cmd_diagnose)
+    for kind, hlp in (("diagnose", "diagnose every catalogued recording with a model, on Dask; results kept"),
+                      ("compare", ("compare every catalogued recording with a model (`daq compare`), on Dask; "
+                                   "results kept")),
+                      ("fit", ("fit a model to every catalogued recording (`daq fit`), on Dask; results (and the "
+                               "fitted models) kept"))):
+        p = asub.add_parser(kind, help=hlp)
+        p.add_argument("--model", action="append", required=True,
+                       help="model TOML (one per rig, repeatable: each recording gets its rig's model)")
+        catalog(p)
+        select(p)
+        p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running Dask scheduler (default: a "
+                                                                       "LocalCluster on this machine)")
+        p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
+        p.add_argument("--serial", action="store_true", help="one recording after another in this process, no Dask")
+        p.add_argument("--recompute", action="store_true", help="ignore stored results")
+        p.set_defaults(func=cmd_job, kind=kind)

@@ -1,13 +1,17 @@
 """Re-diagnosing an archive: every catalogued recording against a model, on Dask distributed, results kept.
 
+The same job compares or fits instead (``kind``: "diagnose", "compare", "fit"; `daq archive diagnose|compare|fit`):
+each kind's result is stored under its own key, so a recording compared with a model is not yet diagnosed with it.
+
 Why Dask distributed (decision 33): labs already run batch reprocessing on existing engines, and
 ``distributed.Client`` is the same code path for a ``LocalCluster`` on this machine (the default: no server to run)
 and for a lab's cluster (``--scheduler tcp://HOST:PORT``); it reschedules the work of a lost worker by itself.
 What this module adds around it:
 
-- the entry point handed to workers is :func:`diagnose_recording`, a plain Python function of this module, never a
-  numba function (those kill workers when pickled: dask/distributed#7929); it runs the same ``diagnose`` as
-  `daq diagnose`, with one process per recording (``workers=1``: Dask is the parallelism);
+- the entry point handed to workers is :func:`analyse_recording` (:func:`diagnose_recording` for the diagnosis), a
+  plain Python function of this module, never a numba function (those kill workers when pickled:
+  dask/distributed#7929); it runs the same ``diagnose`` as `daq diagnose` (with one process per recording,
+  ``workers=1``: Dask is the parallelism), the same fit and comparison as `daq fit` and `daq compare`;
 - the numba cache is warmed once, in this process, before anything fans out: workers starting together would
   otherwise compile the same kernels at once and race on the cache files (numba#4807);
 - every result is stored in the catalog the moment it arrives, in its own transaction, and its future released, so a
@@ -17,8 +21,9 @@ What this module adds around it:
   log (topic ``daq-archive``), which is how a job counts what was computed where (and whether anything was computed
   again after its result was stored).
 
-Results are keyed by (recording hash, model digest, CODE_VERSION): asked again, a stored result is returned
-(``cached``); ``recompute`` ignores them.
+Results are keyed by (recording hash, model digest, code version, kind); the code version is the package's plus the
+kind's revision (:func:`code_version`): asked again, a stored result is returned (``cached``); ``recompute`` ignores
+them.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import dask
 import distributed
 from distributed import Client, LocalCluster, as_completed
 from pydantic import Field
@@ -41,21 +47,55 @@ from daq.errors import DaqError, InputError
 from daq.io.archive import Catalog, CatalogRow, file_hash
 from daq.sim.run import simulate
 
+from .compare import compare
 from .diagnose import diagnose
-from .session import Session
-from .spec import Model, rig_config_for
+from .session import Fitted, Session
+from .spec import Model, dumps, rig_config_for
 
-KIND = "diagnose"
-RESULTS_REVISION = 1  # raise when the diagnosis changes what it concludes: stored results then no longer count
+KIND = "diagnose"  # the default kind of result, and the one `daq archive status` lists by default
+# each kind's revision: raise it when that analysis changes what it concludes, and its stored results no longer count
+REVISIONS = {"diagnose": 1, "compare": 1, "fit": 1}
+KINDS = tuple(REVISIONS)
+DONE = {"diagnose": "diagnosed", "compare": "compared", "fit": "fitted"}  # how status names a kind's results
+RESULTS_REVISION = REVISIONS[KIND]
 try:
     _VERSION = importlib.metadata.version("friction-daq")
 except importlib.metadata.PackageNotFoundError:  # a source tree without the package installed
     _VERSION = "0"
-CODE_VERSION = f"{_VERSION}+diagnose.{RESULTS_REVISION}"
+
+
+def code_version(kind: str = KIND) -> str:
+    """The version a result of ``kind`` is stored under: the package's, and the kind's revision."""
+    return f"{_VERSION}+{kind}.{REVISIONS[kind]}"
+
+
+CODE_VERSION = code_version(KIND)
 EVENT_TOPIC = "daq-archive"
 RESUBMIT = 2  # a task whose worker died (KilledWorker after the scheduler's own retries) is submitted again this often
 CONNECT_S = 5.0  # an unreachable scheduler is an error after this long
 WARM_S = 3.0  # seconds of a simulated record the numba warm-up fits
+# What a LocalCluster's workers (and its scheduler and nannies, in the job's process) run with (decision 33, "Dask
+# with one worker within 5 % of serial"). A worker runs its task in a thread while its event loop keeps waking, and
+# each wake takes the GIL from the task: the statistical profiler samples the task's stack every 10 ms, the loop's
+# health check ticks every 20 ms, the host monitor polls every 500 ms, the memory monitor every 100 ms. Measured on
+# the brake bench's diagnoses (per-thread schedstat, 6 records, a loaded machine): with Dask's defaults the task
+# thread waited for the GIL 3.0-9.4 % of its compute time and the loop used 6-7 % as much CPU again; without the
+# first three 0.5-2.8 % and 1.3-2.3 %. What the cluster costs while nothing runs, job process and worker (30 s idle):
+# 5.1 % of a core with the defaults, 2.1 % without the first three, 1.1 % with the memory monitors (the worker's
+# and its nanny's) every second; a cost that grows with a job's wall time on a loaded machine. Nothing here draws a
+# dashboard (dashboard_address=None); a diagnosis's memory is small, so checking it every second is enough.
+# The environment is Dask's own default, chosen here on purpose rather than inherited: one BLAS/OpenMP thread a worker
+# (Dask is the parallelism: a worker a core, no oversubscription) and glibc returning freed memory early (the
+# nanny's memory limits read the process's RSS). The bench runs the serial path under the same environment.
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+              "MALLOC_TRIM_THRESHOLD_": "65536"}
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.nanny.pre-spawn-environ": WORKER_ENV,
+}
 
 
 class DiagnoseRow(Strict):
@@ -75,10 +115,30 @@ class DiagnoseRow(Strict):
     worker: str | None = None
 
 
+class ResultRow(Strict):
+    """One recording's compare or fit answer (`daq archive compare --json`, `daq archive fit --json`)."""
+
+    path: str
+    hash: str
+    model_digest: str
+    kind: str  # compare | fit
+    error: float | None  # the model's error on held-out windows (as `daq compare`'s and `daq fit`'s "error")
+    error_unit: str | None
+    noise_floor: float | None  # compare's; None for a fit (it computes no floor)
+    cached: bool  # the stored result was returned, nothing computed
+    failure: str | None = None
+    seconds: float | None = None
+    worker: str | None = None
+    # the stored answer: `daq compare --json`'s fields; for a fit its parameters, convergence and the fitted model's
+    # TOML (``fitted_model``); None when the recording failed
+    result: dict[str, Any] | None = None
+
+
 class JobReport(Strict):
     """A whole job: its rows, where it ran, and the counts the fault tests read."""
 
-    rows: list[DiagnoseRow]
+    rows: list[DiagnoseRow | ResultRow]
+    kind: str = KIND
     engine: str  # serial | LocalCluster (N workers) | the scheduler's address
     computed: int
     cached: int
@@ -101,26 +161,56 @@ def _log(msg: dict[str, Any]) -> None:
         pass
 
 
-def diagnose_recording(path: str, digest: str, model: Model) -> dict[str, Any]:
-    """Diagnose one recording with ``model``: a plain function of a module, so any worker can import it. Bad input
-    (a damaged file, a file changed since it was catalogued, a recording of another rig) is a ``failure`` line in
-    the answer, not an exception: one bad recording must not cost the others their results."""
+def fit_json(session: Session, fitted: Fitted) -> dict[str, Any]:
+    """A fit's answer as `daq fit --json` gives it (the error on held-out and on all windows, each parameter's value
+    and std, convergence), with the fitted model itself as TOML (``fitted_model``), so a stored fit is a model."""
+    primary = session.primary
+    return {"error": fitted.rms(primary), "error_unit": session.m.units[primary],
+            "error_all_windows": fitted.rms(primary, "all"),
+            "parameters": {k: {"value": fitted.values[k], "std": fitted.fit.std.get(k)}
+                           for k in fitted.model.free_names()},
+            "converged": fitted.fit.success, "message": fitted.fit.message, "cost": fitted.fit.cost,
+            "fitted_model": dumps(fitted.model), "fitted_digest": fitted.model.digest()}
+
+
+def _compare(s: Session, model: Model) -> dict[str, Any]:
+    f = s.fit(model)
+    out = compare(s, f, s.noise_floor(f))
+    out.pop("_plot")  # the figures' arrays: not a result to keep
+    return out
+
+
+ANALYSES: dict[str, Callable[[Session, Model], dict[str, Any]]] = {
+    "diagnose": lambda s, model: diagnose(s, model, workers=1).as_json(s),
+    "compare": _compare,
+    "fit": lambda s, model: fit_json(s, s.fit(model)),
+}
+
+
+def analyse_recording(path: str, digest: str, model: Model, kind: str = KIND) -> dict[str, Any]:
+    """Diagnose (compare, fit) one recording with ``model``: a plain function of a module, so any worker can import
+    it. Bad input (a damaged file, a file changed since it was catalogued, a recording of another rig) is a
+    ``failure`` line in the answer, not an exception: one bad recording must not cost the others their results."""
     t0 = time.time()
     _log({"hash": digest, "phase": "start", "t": t0, "pid": os.getpid()})
     result, failure = None, None
     try:
         if file_hash(path) != digest:
             raise InputError(path, "(file)", "changed since it was catalogued: `daq archive scan` it again")
-        s = Session.open(path, model)
-        result = diagnose(s, model, workers=1).as_json(s)
+        result = ANALYSES[kind](Session.open(path, model), model)
     except (DaqError, OSError) as exc:
         failure = str(exc) if isinstance(exc, DaqError) else f"{path}: (file): {exc}"
     except Exception as exc:  # noqa: BLE001 - a numerical failure on one record is reported, the job goes on
-        failure = f"{path}: (diagnose): {type(exc).__name__}: {exc}"
+        failure = f"{path}: ({kind}): {type(exc).__name__}: {exc}"
     t1 = time.time()
     _log({"hash": digest, "phase": "done", "t0": t0, "t": t1, "pid": os.getpid()})
     return {"hash": digest, "result": result, "failure": failure, "seconds": t1 - t0,
             "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def diagnose_recording(path: str, digest: str, model: Model) -> dict[str, Any]:
+    """Diagnose one recording with ``model`` (:func:`analyse_recording` of the diagnosis)."""
+    return analyse_recording(path, digest, model, "diagnose")
 
 
 def warm_numba(model: Model) -> None:
@@ -134,8 +224,15 @@ def warm_numba(model: Model) -> None:
 # --------------------------------------------------------------------------- rows and their results
 
 
-def _row(rec: CatalogRow, model_digest: str, stored: dict[str, Any], cached: bool) -> DiagnoseRow:
+def _row(rec: CatalogRow, model_digest: str, stored: dict[str, Any], cached: bool,
+         kind: str = KIND) -> DiagnoseRow | ResultRow:
     res, failure = stored.get("result"), stored.get("failure")
+    if kind != "diagnose":
+        return ResultRow(
+            path=rec.path, hash=rec.hash, model_digest=model_digest, kind=kind, cached=cached, failure=failure,
+            error=res.get("error") if res else None, error_unit=res.get("error_unit") if res else None,
+            noise_floor=res.get("noise_floor") if res else None, seconds=stored.get("seconds"),
+            worker=stored.get("worker"), result=res)
     return DiagnoseRow(
         path=rec.path, hash=rec.hash, model_digest=model_digest, cached=cached, failure=failure,
         named=list(res["named"]) if res else [],
@@ -163,15 +260,19 @@ def match_models(rows: list[CatalogRow], models: list[Model], say: Callable[[str
 
 
 def status(cat: Catalog, rows: list[CatalogRow], models: list[Model]) -> dict[str, Any]:
-    """Which recordings are diagnosed with each model (at this code version) and which are not yet."""
-    out: dict[str, Any] = {"code_version": CODE_VERSION, "models": []}
+    """For each model, of the recordings of its rig: how many have a stored result of each kind at this code version
+    (``diagnosed``, ``compared``, ``fitted``) and which have none yet (``not_diagnosed``, ...)."""
+    out: dict[str, Any] = {"code_version": CODE_VERSION, "code_versions": {k: code_version(k) for k in KINDS},
+                           "models": []}
     for m in models:
         digest = m.digest()
-        have = cat.results(digest, CODE_VERSION, KIND)
         mine = [r for r in rows if r.rig == m.rig]
-        out["models"].append({"model_digest": digest, "rig": m.rig, "model": m.describe(), "recordings": len(mine),
-                              "diagnosed": sum(r.hash in have for r in mine),
-                              "not_diagnosed": [{"path": r.path, "hash": r.hash} for r in mine if r.hash not in have]})
+        entry: dict[str, Any] = {"model_digest": digest, "rig": m.rig, "model": m.describe(), "recordings": len(mine)}
+        for kind in KINDS:
+            have = cat.results(digest, code_version(kind), kind)
+            entry[DONE[kind]] = sum(r.hash in have for r in mine)
+            entry[f"not_{DONE[kind]}"] = [{"path": r.path, "hash": r.hash} for r in mine if r.hash not in have]
+        out["models"].append(entry)
     return out
 
 
@@ -222,8 +323,9 @@ def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalC
             raise InputError("--scheduler", scheduler, f"cannot reach a Dask scheduler there ({type(exc).__name__}: "
                                                        f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    with dask.config.set(WORKER_CONFIG):  # the nannies hand this configuration to the worker processes they start
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
     return Client(cluster), cluster, f"LocalCluster ({n} worker{'s' if n > 1 else ''})"
 
 
@@ -276,35 +378,49 @@ def engine(scheduler: str | None, workers: int | None) -> Iterator[tuple[Client,
         _close(client, cluster)
 
 
-def run_diagnoses(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, scheduler: str | None = None,
-                  workers: int | None = None, serial: bool = False, recompute: bool = False,
-                  say: Callable[[str], None] = lambda msg: None) -> JobReport:
-    """Diagnose every (recording, model) pair not diagnosed yet (all with ``recompute``), each result stored as it
-    arrives; ``serial``: in this process, one after the other (the baseline the bench compares Dask with)."""
+def verdict(row: DiagnoseRow | ResultRow) -> str:
+    """A row's answer in a few words (a progress line, the table of `daq archive diagnose|compare|fit`)."""
+    if row.failure:
+        return f"failed: {row.failure}"
+    if isinstance(row, DiagnoseRow):
+        return ("named " + ", ".join(row.named) if row.named else "nothing named") + (
+            "; undecided " + "; ".join(" / ".join(u) for u in row.undecided) if row.undecided else "")
+    if row.error is None:
+        return "no error figure"
+    floor = f" (floor {row.noise_floor:.4g})" if row.noise_floor is not None else ""
+    return f"error {row.error:.4g} {row.error_unit}{floor}"
+
+
+def run_job(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, kind: str = KIND, scheduler: str | None = None,
+            workers: int | None = None, serial: bool = False, recompute: bool = False,
+            say: Callable[[str], None] = lambda msg: None) -> JobReport:
+    """Diagnose (``kind``: compare, fit) every (recording, model) pair without a stored result of that kind yet
+    (all with ``recompute``), each result stored as it arrives; ``serial``: in this process, one after the other
+    (the baseline the bench compares Dask with)."""
+    if kind not in REVISIONS:
+        raise InputError("--kind", kind, f"not one of {', '.join(KINDS)}")
+    version = code_version(kind)
     t_start, wall_start = time.perf_counter(), time.time()
     digests = {id(m): m.digest() for _, m in pairs}
-    answers: dict[str, DiagnoseRow] = {}
+    answers: dict[str, DiagnoseRow | ResultRow] = {}
     todo: list[tuple[CatalogRow, Model]] = []
     for rec, m in pairs:
-        stored = None if recompute else cat.result(rec.hash, digests[id(m)], CODE_VERSION, KIND)
+        stored = None if recompute else cat.result(rec.hash, digests[id(m)], version, kind)
         if stored is not None:
-            answers[rec.hash] = _row(rec, stored.model_digest, stored.result, cached=True)
+            answers[rec.hash] = _row(rec, stored.model_digest, stored.result, True, kind)
         else:
             todo.append((rec, m))
     total, done = len(pairs), len(answers)
-    say(f"{total} recording(s); {done} answered from the catalog; {len(todo)} to diagnose")
+    say(f"{total} recording(s); {done} answered from the catalog; {len(todo)} to {kind}")
     stored_at: dict[str, float] = {}
 
     def store(rec: CatalogRow, m: Model, out: dict[str, Any]) -> None:
         nonlocal done
         stored_at[rec.hash] = time.time()
-        cat.store_result(rec.hash, digests[id(m)], CODE_VERSION, KIND, out, out.get("seconds"), out.get("worker"))
-        row = answers[rec.hash] = _row(rec, digests[id(m)], out, cached=False)
+        cat.store_result(rec.hash, digests[id(m)], version, kind, out, out.get("seconds"), out.get("worker"))
+        row = answers[rec.hash] = _row(rec, digests[id(m)], out, False, kind)
         done += 1
-        what = (f"failed: {row.failure}" if row.failure else
-                "named " + (", ".join(row.named) or "nothing") + ("; undecided " + "; ".join(
-                    " / ".join(u) for u in row.undecided) if row.undecided else ""))
-        say(f"[{done}/{total}] {rec.name}: {what} ({out.get('seconds', 0.0):.1f} s, {out.get('worker')})")
+        say(f"[{done}/{total}] {rec.name}: {verdict(row)} ({out.get('seconds', 0.0):.1f} s, {out.get('worker')})")
 
     def warm() -> None:
         for m in {id(m): m for _, m in todo}.values():
@@ -315,7 +431,7 @@ def run_diagnoses(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, schedu
     if todo and serial:
         warm()
         for rec, m in todo:
-            store(rec, m, diagnose_recording(rec.path, rec.hash, m))
+            store(rec, m, analyse_recording(rec.path, rec.hash, m, kind))
     elif todo:
         with engine(scheduler, workers) as (client, name):
             warm()
@@ -323,9 +439,9 @@ def run_diagnoses(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, schedu
             # the largest files first (a diagnosis's cost grows with the record): the last one to finish is then a
             # short one, not a long one started late with the other workers idle
             order = sorted(todo, key=lambda pair: -pair[0].size)
-            tasks = [(rec.path, rec.hash, m) for rec, m in order]
-            names = [f"daq-diagnose-{rec.hash[:16]}-{digests[id(m)]}" for rec, m in order]
-            for got in fan_out(client, diagnose_recording, tasks, names, say, counter):
+            tasks = [(rec.path, rec.hash, m, kind) for rec, m in order]
+            names = [f"daq-{kind}-{rec.hash[:16]}-{digests[id(m)]}" for rec, m in order]
+            for got in fan_out(client, analyse_recording, tasks, names, say, counter):
                 rec, m = order[got.index]
                 store(rec, m, got.result if got.error is None else
                       {"hash": rec.hash, "result": None, "failure": f"{rec.path}: (worker): {got.error}"})
@@ -333,9 +449,12 @@ def run_diagnoses(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, schedu
     rows = [answers[rec.hash] for rec, _ in pairs]
     seconds = time.perf_counter() - t_start
     failed = sum(r.failure is not None for r in rows)
-    report = JobReport(rows=rows, engine=name, computed=len(todo), cached=total - len(todo), failed=failed,
+    report = JobReport(rows=rows, kind=kind, engine=name, computed=len(todo), cached=total - len(todo), failed=failed,
                        seconds=seconds, resubmitted=counter.get("resubmitted", 0), runs=runs, after_stored=after,
                        lost=lost)
-    say(f"done: {total} recording(s), {report.computed} diagnosed, {report.cached} from the catalog, {failed} failed, "
-        f"{seconds:.1f} s" + (f" on {name} ({60 * len(todo) / seconds:.1f} records/min)" if todo else ""))
+    say(f"done: {total} recording(s), {report.computed} {DONE[kind]}, {report.cached} from the catalog, "
+        f"{failed} failed, {seconds:.1f} s" + (f" on {name} ({60 * len(todo) / seconds:.1f} records/min)" if todo else ""))
     return report
+
+
+run_diagnoses = run_job  # the diagnosis's name for the job (kind="diagnose" is the default)
