@@ -1,4 +1,10 @@
-"""Shared fixtures: rig configs and short simulations, computed once per session."""
+"""Shared fixtures (rig configs and short simulations, computed once per session), and the order files run in.
+
+`make test` runs the suite on two pytest-xdist workers, a file to a worker at a time (``-n 2 --dist loadfile
+--no-loadscope-reorder``: a module's fixtures, such as a daemon, are started once), taking files in collection
+order: RUN_FIRST below, then the files with a slow test, then the rest. Tests that take seconds are marked
+``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
+"""
 
 from __future__ import annotations
 
@@ -7,8 +13,45 @@ import os
 import matplotlib
 import pytest
 
+pytest.register_assert_rewrite("helpers")  # its assertions explain themselves as a test file's do
+
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The long files, in the order the two workers take them (seconds: one serial run on a 2-core machine, numba's cache
+# cold as in CI). First the long computations, both workers busy with fits and simulations; then the files that
+# run in real time (a daemon against a simulated bench, a soak, a browser), paired with each other rather than
+# with a fit that keeps both cores busy: their assertions hold rates and reaction times to bounds. The short files
+# come last, so the two workers finish together. Re-measure (`pytest --durations=0`, summed per file) when a file
+# grows or shrinks by tens of seconds; a new long file belongs in the list.
+RUN_FIRST = (
+    # computations
+    "test_rsf.py",  # 137 s: two of the user's paths, a minute each
+    "test_recovery.py",  # 74 s
+    "test_diagnose.py",  # 74 s
+    "test_real_slider.py",  # 46 s
+    "test_refsim.py",  # 46 s
+    "test_robust.py",  # 34 s
+    "test_belt_model.py",  # 27 s
+    "test_paper000.py",  # 22 s
+    "test_archive.py",  # 50 s: Dask clusters
+    # in real time
+    "test_campaign.py",  # 38 s
+    "test_daemon_e2e.py",  # 37 s
+    "test_soak.py",  # 46 s: a half-minute soak
+    "test_web.py",  # 28 s
+    "test_reliability_web.py",  # 24 s
+    "test_reliability_daemon.py",  # 12 s
+    "test_crash_recovery.py",  # 11 s
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """RUN_FIRST's files in its order, then the other files with a slow test, then the rest (a stable sort: inside a
+    file, and within each of the last two parts, the order is unchanged)."""
+    rank = {name: i for i, name in enumerate(RUN_FIRST)}
+    with_slow = {item.path.name for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank) + (item.path.name not in with_slow)))
 
 
 @pytest.fixture(scope="session")

@@ -1,16 +1,41 @@
-"""What several tests share: bad-input assertions (one line naming file and field), ramp files, a lab's slider."""
+"""What several test files share: bad-input assertions (one line naming file and field), ramp files, a lab's
+slider, the command line as a subprocess, waits on a condition, and a real ``daq daemon --sim`` (with its web page)
+driven from a test.
+
+``daq`` here is the command line called in this process (``main(argv)``, its exit code); ``daq_process`` runs
+it as the user does, in a subprocess (each pays ~1.5 s of imports: keep those to the paths a user takes).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
 from pathlib import Path
 
 import numpy as np
 import scipy.io
+from websockets.sync.client import connect
 
 from daq.cli.main import main as daq
-from daq.config import rig_path
+from daq.config import load_rig, rig_path
+from daq.daemon.control import ControlClient
 from daq.errors import InputError
+from daq.io.interchange import write_recording
+from daq.sim.effectset import parse_effect
+from daq.sim.run import simulate
+from sim_backends.process import pid_alive
+from sim_backends.process import request as sim_request
+
+ROOT = Path(__file__).resolve().parent.parent  # the repository: the working folder of every subprocess
 
 M, K, G = 0.05, 200.0, 9.81  # the spring-slider of docs/examples/spring-slider.md: mass, spring, gravity
 
@@ -64,3 +89,174 @@ def slider_compare(tmp_path: Path, t: np.ndarray, f_over_mg: np.ndarray, drive: 
     assert daq(["model", "init", str(rig), "-o", str(model)]) == 0
     assert daq(["compare", str(h5), "--model", str(model), "--no-history", "--report", str(tmp_path / "cmp")]) == 0
     return json.loads((tmp_path / "cmp" / "compare.json").read_text())
+
+
+def make_recordings(folder: Path, spec: list[tuple[str, float, int]], effects: dict[int, str] | None = None) -> Path:
+    """Simulated recordings (the project's simulator) of each (rig, seconds, seed), at 100 Hz."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, (rig, seconds, seed) in enumerate(spec):
+        eff = (effects or {}).get(i)
+        rec = simulate(load_rig(rig), effects=[parse_effect(eff)] if eff else [], rate=100.0, seed=seed,
+                       duration=seconds)
+        write_recording(rec, folder / f"{rig}-{i:02d}.h5")
+    return folder
+
+
+# ----------------------------------------------------------------------------- processes, waits, ports
+
+
+def daq_process(*args: str, timeout: float = 120.0, cwd: Path | None = None, env: dict | None = None
+                ) -> subprocess.CompletedProcess:
+    """``daq ARGS...`` in a subprocess (``python -m daq.cli``), as the user runs it; output captured as text."""
+    return subprocess.run([sys.executable, "-m", "daq.cli", *args], cwd=cwd or ROOT, capture_output=True, text=True,
+                          timeout=timeout, env=env, check=False)
+
+
+def wait_for(pred, timeout: float, what: str):
+    """Poll ``pred`` every 50 ms until it returns something true (returned), or fail naming ``what``."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        got = pred()
+        if got:
+            return got
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def wait_gone(pid: int, timeout: float) -> bool:
+    """True once process ``pid`` has ended (within ``timeout``)."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if not pid_alive(pid):
+            return True
+        time.sleep(0.05)
+    return not pid_alive(pid)
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (the OS's pick: no two test workers get the same one)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def event_kinds(f) -> list[str]:
+    """The ``kind`` column of a recording's event table (an open h5py.File), as str."""
+    return [k.decode() if isinstance(k, bytes) else k for k in f["events"]["kind"]]
+
+
+# ----------------------------------------------------------------------------- a real daemon on a simulated bench
+
+SHORT = ramp_text(1.5)
+LONG = ramp_text(120.0, stop=False)
+TOO_FAST = 'start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.1\nto_m_per_s = 0.4\n'
+START_S = 180.0  # first start compiles/loads numba caches; a loaded CI machine is slow
+
+
+class DaemonProc:
+    """``daq daemon --rig brake-2dof --sim`` as a subprocess; parses its ready line (``err``: its stderr lines)."""
+
+    def __init__(self, tmp: Path, *extra: str) -> None:
+        self.tmp = tmp
+        self.data = tmp / "data"
+        self.proc = subprocess.Popen([sys.executable, "-m", "daq.cli", "daemon", "--rig", "brake-2dof", "--sim",
+                                      "--data-dir", str(self.data), "--control", "tcp://127.0.0.1:0",
+                                      "--bus", "tcp://127.0.0.1:0", "--workdir", str(tmp / "dev"), *extra],
+                                     cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.err: list[str] = []
+        threading.Thread(target=self._read_err, daemon=True).start()
+        box: list[str] = []
+        th = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
+        th.start()
+        th.join(START_S)
+        line = box[0] if box else ""
+        if "ready" not in line:
+            self.proc.kill()
+            raise AssertionError(f"daemon did not start: {line!r}")
+        fields = dict(re.findall(r"(\w+)=(\S+)", line))
+        self.endpoint = fields["control"]
+        self.sim_control = fields["sim_control"]
+        self.sim_pid = int(fields["sim_bench_pid"])
+        self.rest: list[str] = []
+        threading.Thread(target=lambda: self.rest.extend(self.proc.stdout), daemon=True).start()
+
+    def _read_err(self) -> None:
+        for line in self.proc.stderr:
+            self.err.append(line)
+            sys.stderr.write(line)  # still shown by pytest on failure
+
+    def ctl(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
+        """``daq ctl --endpoint THIS ARGS...`` in a subprocess, as the operator types it."""
+        return daq_process("ctl", "--endpoint", self.endpoint, *args, timeout=timeout)
+
+    def run_long_ramp(self, record: Path | None = None) -> None:
+        """Start recording to ``record`` (if given) and the long ramp, and wait until the belt is at speed."""
+        ramp = self.tmp / "long.toml"
+        ramp.write_text(LONG)
+        if record is not None:
+            assert self.ctl("record", "start", "--path", str(record)).returncode == 0
+        assert self.ctl("ramp", str(ramp), "--no-wait").returncode == 0
+        wait_for(lambda: self.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
+
+    def status(self) -> dict:
+        """The daemon's status over its control socket, from this process: what ``daq ctl status --json`` prints,
+        without a subprocess's start-up, so that a poll reads it every few ms (the CLI's own output is tested with
+        ``ctl``)."""
+        with ControlClient(self.endpoint, timeout_s=30.0) as c:
+            r = c.request("status")
+        assert r.ok, r.error
+        return r.result
+
+    def sim(self) -> dict:
+        return sim_request(self.sim_control, "status")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        try:  # the bench outlives the daemon by design: end it (unless a later daemon on it already did)
+            if pid_alive(self.sim_pid):
+                sim_request(self.sim_control, "exit", timeout_s=2.0)
+        except TimeoutError:
+            pass
+        wait_gone(self.sim_pid, 10.0)
+        if pid_alive(self.sim_pid):
+            os.kill(self.sim_pid, signal.SIGKILL)
+
+
+class WebRig:
+    """A daemon with CURVE keys and its web page (``--keys DIR --web 127.0.0.1:0``), its operator link, a page that
+    asks for frames and never reads one, and a CURVE operator client for status."""
+
+    def __init__(self, tmp: Path) -> None:
+        keys = tmp / "keys"
+        r = daq_process("ctl", "keygen", str(keys), "--operator", "alice", timeout=60)
+        assert r.returncode == 0, r.stderr
+        self.d = DaemonProc(tmp, "--keys", str(keys), "--web", "127.0.0.1:0")
+        line = wait_for(lambda: next((x for x in self.d.err if "operator link" in x), None), 10, "the operator link")
+        self.url, self.token = re.search(r"(http://\S+/)#token=(\S+)", line).groups()
+        # a page that asks for frames and never reads one: it must cost nobody anything
+        self._stack = contextlib.ExitStack()
+        self.stalled = self._stack.enter_context(connect(self.url.replace("http://", "ws://") + "ws"))
+        self.stalled.send(json.dumps({"type": "view", "window_s": 10, "width": 1500}))
+        alice = keys / "clients" / "alice"
+        self.client = ControlClient(self.d.endpoint, client_secret_file=alice / "client.key_secret",
+                                    server_public_file=alice / "server.key", timeout_s=30.0)
+
+    def status(self) -> dict:
+        r = self.client.request("status")
+        assert r.ok, r.error
+        return r.result
+
+    def page_stats(self) -> dict:
+        with urllib.request.urlopen(self.url + "api/stats", timeout=10) as r:
+            return json.load(r)
+
+    def close(self) -> None:
+        self._stack.close()
+        self.client.close()
+        self.d.close()

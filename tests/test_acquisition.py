@@ -77,6 +77,7 @@ def bench(tmp_path):
             drivers.close()
 
 
+@pytest.mark.slow
 def test_streams_units_motor_and_clean_stop(bench):
     cfg, hw, drivers, acq, lis = bench
     want = {"can.x1": ("x1", "m"), "can.phi": ("phi", "rad"), "thermocouple": ("temp", "degC")}

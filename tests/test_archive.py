@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -23,6 +22,7 @@ from pathlib import Path
 import h5py
 import psutil
 import pytest
+from helpers import free_port, make_recordings
 
 from daq.cli.main import main as daq
 from daq.config import load_rig
@@ -39,19 +39,6 @@ SUITE = [("brake-2dof", 6.0, s) for s in (1, 2, 3, 4)] + [("drum-pendulum", 4.0,
 
 
 # --------------------------------------------------------------------------- helpers shared with tests/long
-
-
-def make_recordings(folder: Path, spec: list[tuple[str, float, int]], effects: dict[int, str] | None = None) -> Path:
-    """Simulated recordings (the project's simulator) of each (rig, seconds, seed), at 100 Hz."""
-    from daq.sim.effectset import parse_effect
-
-    folder.mkdir(parents=True, exist_ok=True)
-    for i, (rig, seconds, seed) in enumerate(spec):
-        eff = (effects or {}).get(i)
-        rec = simulate(load_rig(rig), effects=[parse_effect(eff)] if eff else [], rate=100.0, seed=seed,
-                       duration=seconds)
-        write_recording(rec, folder / f"{rig}-{i:02d}.h5")
-    return folder
 
 
 def models_for(spec: list[tuple[str, float, int]]) -> list[Model]:
@@ -88,12 +75,6 @@ def assert_each_once(catalog: Path, rep: JobReport, n: int) -> None:
     assert len(got) == n and all(c == 1 and k == 1 for _, c, k in got), got
     assert rep.after_stored == 0
     assert set(rep.runs) == {r.hash for r in rep.rows}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def killer(pids: Callable[[], list[int]], first_pid_of: Callable[[str], int]) -> tuple[Callable[[str], None], dict]:
@@ -205,17 +186,20 @@ def suite_data(tmp_path_factory, tcp_cluster):
     return tmp, data, models, serial
 
 
+@pytest.mark.slow
 def test_dask_scheduler_and_two_workers_one_killed(suite_data, tcp_cluster):
     tmp, data, models, serial = suite_data
     rep = run_tcp_case(tmp, data, models, verdicts(serial), *tcp_cluster)
     assert rep.engine.startswith("tcp://127.0.0.1:") and rep.computed == len(SUITE)
 
 
+@pytest.mark.slow
 def test_local_cluster_one_worker_killed(suite_data):
     tmp, data, models, serial = suite_data
     run_local_case(tmp, data, models, verdicts(serial))
 
 
+@pytest.mark.slow
 def test_stored_results_are_returned_and_status_says_what_is_missing(suite_data, capsys):
     tmp, _, _, serial = suite_data
     cat = tmp / "serial.sqlite"
@@ -237,6 +221,7 @@ def test_stored_results_are_returned_and_status_says_what_is_missing(suite_data,
         assert archive_jobs.status(c, c.rows(), [changed])["models"][0]["diagnosed"] == 0
 
 
+@pytest.mark.slow
 def test_a_job_killed_resumes_without_redoing_finished_work(suite_data):
     tmp, data, models, serial = suite_data
     brake = [m for m in models if m.rig == "brake-2dof"]
@@ -272,6 +257,7 @@ def tiny_copies(folder: Path, n: int) -> list[Path]:
     return out
 
 
+@pytest.mark.slow
 def test_scan_200_files_a_damaged_one_a_rename_and_two_scans_at_once(tmp_path, capsys):
     files = tiny_copies(tmp_path / "runs", 200)
     (tmp_path / "runs" / "damaged.h5").write_bytes(files[0].read_bytes()[:3000])  # cut short by a full disk

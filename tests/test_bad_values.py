@@ -265,6 +265,7 @@ if __name__ == "__main__":  # the longer fuzz run reported in the issue's closin
         print(Counter(fuzz_case(rng_, Path(d), base_text) for _ in range(n)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "garbage"])
 def test_a_damaged_tdms_file_is_one_line_without_library_warnings(tmp_path, brake_model, damage):
     """npTDMS logs warnings about damaged segments through its own loggers and handlers: they printed two lines

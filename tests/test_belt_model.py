@@ -33,6 +33,7 @@ from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("b", [0.0, 0.05])
 def test_the_belt_chain_equals_a_spring_slider_integrated_in_the_lab_frame(tmp_path, b):
     """One mass of paper 000's chain on a belt at V is a slider pulled through a spring by a driver at V: the
@@ -72,6 +73,7 @@ def regrowing_slips(w: np.ndarray, stuck: np.ndarray, rise: float) -> int:
     return count
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [2, 3])
 def test_a_chain_of_masses_equals_the_reference_chain_in_other_coordinates(tmp_path, n):
     """Two and three masses: daq's chain (positions from the wall, RK4 cut at located events) and
@@ -127,6 +129,7 @@ def test_a_driven_spring_end_is_a_spring_slider_through_a_driver_step(tmp_path, 
     assert errors["belt"] > 1e-4, errors
 
 
+@pytest.mark.slow
 def test_the_seed_model_on_its_own_simulation_sits_at_the_noise_floor(tmp_path):
     cfg = load_rig("belt-ndof")
     rec = simulate_rig(cfg, duration=8.0, seed=3)
@@ -181,6 +184,7 @@ def test_belt_model_files_round_trip(tmp_path):
     assert "pwl-000" in path.read_text()
 
 
+@pytest.mark.slow
 def test_a_users_spring_slider_far_from_the_config_law_converges_from_the_data(tmp_path):
     """The user's path on a lab-frame record (a MATLAB file holding t and F/mg only, noise and quantisation):
     rig file edited -> import --map (the driver's speed steps as arithmetic of t) -> model init -> compare. The

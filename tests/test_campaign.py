@@ -59,6 +59,7 @@ def _end_everything(out: Path) -> None:
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_campaign_killed_after_first_cell_resumes_without_redoing_it(tmp_path):
     out = tmp_path / "camp"
     proc = subprocess.Popen(_campaign(out), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -363,6 +363,7 @@ def test_saturated_sensor_is_clipped(brake_cfg, bench):
 # --- clocks, in real time
 
 
+@pytest.mark.slow
 def test_device_clock_drift_is_estimated(brake_cfg, bench):
     b = bench(brake_cfg, clock=DeviceClock(offset_s=100.0, drift_ppm=300.0), attach=False)
     b.sim.start()

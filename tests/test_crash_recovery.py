@@ -23,7 +23,7 @@ from pathlib import Path
 
 import h5py
 import pytest
-from test_daemon_e2e import SHORT, DaemonProc, _kinds, _wait_for, _wait_gone
+from helpers import SHORT, DaemonProc, event_kinds, wait_for, wait_gone
 
 from daq.cli.daemon import format_status
 from daq.daemon.ramp_runner import RampRunner
@@ -37,8 +37,6 @@ from daq.daemon.session_state import (
 )
 from drivers.motor import MotorDrive
 from drivers.motor_protocol import Status
-
-
 
 # ----------------------------------------------------------------------------- kill -9 of the daemon, restart
 
@@ -66,7 +64,7 @@ def killed(tmp_path_factory):
         os.kill(d.proc.pid, signal.SIGKILL)
         t0 = time.monotonic()
         d.proc.wait(10)
-        sim = _wait_for(lambda: (s := d.sim())["belt_speed"] <= 1e-3 and s, 30, "the belt at rest")
+        sim = wait_for(lambda: (s := d.sim())["belt_speed"] <= 1e-3 and s, 30, "the belt at rest")
         stopped_s = time.monotonic() - t0
         print(f"belt at rest {stopped_s:.2f} s after kill -9")  # 0.5 s watchdog + 0.3 s ramp at max_accel
     except BaseException:
@@ -83,17 +81,19 @@ def restarted(killed):
     d.close()
 
 
+@pytest.mark.slow
 def test_kill9_of_the_daemon_the_regulator_watchdog_stops_the_belt(killed):
     assert killed.sim["motor_state"] == "WATCHDOG" and killed.sim["watchdog_trips"] == 1
     assert killed.stopped_s < 10.0  # bounded by the watchdog, not by anything the dead daemon could do
     for pid in killed.children:  # estimator and recorder notice their parent is gone and exit
-        assert _wait_gone(pid, 30), pid
+        assert wait_gone(pid, 30), pid
     with h5py.File(killed.recording) as f:  # the orphaned recorder closed its file cleanly
-        assert "parent_gone" in _kinds(f) and f["streams/laser_serial/x1"].size > 500
+        assert "parent_gone" in event_kinds(f) and f["streams/laser_serial/x1"].size > 500
     state = SessionFile.model_validate_json((killed.d.data / ".daq-daemon" / "brake-2dof.session.json").read_text())
     assert state.state == "running" and state.pid == killed.pid and state.recording is not None
 
 
+@pytest.mark.slow
 def test_restart_after_kill9_reports_the_unclean_end_and_refuses_motion(killed, restarted):
     warning = [line for line in restarted.err if "ended uncleanly" in line]
     assert len(warning) == 1, restarted.err
@@ -119,6 +119,7 @@ def test_restart_after_kill9_reports_the_unclean_end_and_refuses_motion(killed, 
     assert sim["motor_state"] == "WATCHDOG" and sim["belt_speed"] == 0.0  # nothing reached the motor
 
 
+@pytest.mark.slow
 def test_reset_at_standstill_clears_the_latch_and_the_belt_moves_again(restarted):
     r = restarted.ctl("reset")
     assert r.returncode == 0, r.stderr
@@ -127,7 +128,7 @@ def test_reset_at_standstill_clears_the_latch_and_the_belt_moves_again(restarted
     assert st["motion"]["allowed"] and st["last_session"] is None and not st["regulator"]["latched"]
     ramp = restarted.tmp / "long.toml"
     assert restarted.ctl("ramp", str(ramp), "--no-wait").returncode == 0
-    _wait_for(lambda: restarted.sim()["belt_speed"] > 0.05, 30, "the belt moving")
+    wait_for(lambda: restarted.sim()["belt_speed"] > 0.05, 30, "the belt moving")
     assert restarted.ctl("stop").returncode == 0
     state = json.loads((restarted.data / ".daq-daemon" / "brake-2dof.session.json").read_text())
     assert state["unclean_end"] is None  # acknowledged: the next start will not report it again
@@ -228,7 +229,7 @@ class _Motor(MotorDrive):
 @pytest.mark.parametrize("how", ["stop", "estop"])
 def test_runner_commands_0_after_a_stop_not_the_programme_speed(how):
     r = RampRunner(_Motor(), [0.0, 0.3, 60.0], [0.0, 0.15, 0.15], max_speed=0.3, max_accel=0.5).start()
-    _wait_for(lambda: r.progress().commanded > 0.05, 10, "the ramp under way")
+    wait_for(lambda: r.progress().commanded > 0.05, 10, "the ramp under way")
     getattr(r, how)()
     assert r.join(5)
     p = r.progress()

@@ -100,6 +100,7 @@ def test_a_short_dip_into_the_stick_band_does_not_split_a_slip():
     assert c.slip_m == pytest.approx(0.2 * 0.397, rel=0.01) and c.peak_slip_m_per_s == 0.2
 
 
+@pytest.mark.slow
 def test_the_estimator_publishes_cycles_and_the_recorder_stores_them_beside_the_streams(brake_cfg, seed_run, tmp_path):
     """Publisher -> OnlineEstimator -> Recorder: the run file's /cycles holds what the detector finds offline."""
     rec, n = seed_run, 8001  # 8 s

@@ -16,6 +16,7 @@ from helpers import ramp_text
 RAMP = ramp_text(1.0)
 
 
+@pytest.mark.slow
 def test_run_sim_ramp_records_every_channel_the_estimator_and_reports_progress(tmp_path):
     seen: list[BenchProgress] = []
     out = run_sim_ramp("brake-2dof", seed_ramp(0.17, 45.0), tmp_path / "seed.h5", ramp_time_scale=3.0 / 45.0,

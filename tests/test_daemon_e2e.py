@@ -10,128 +10,19 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
-import subprocess
-import sys
-import threading
 import time
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 import zmq
+from helpers import SHORT, TOO_FAST, DaemonProc, daq_process, event_kinds, wait_for, wait_gone
 
 from daq.config import load_rig
 from daq.daemon.control import FORBIDDEN, ControlClient, Reply
-from sim_backends.process import pid_alive, request as sim_request
 
-from helpers import ramp_text
-
-ROOT = Path(__file__).resolve().parent.parent
-SHORT = ramp_text(1.5)
-LONG = ramp_text(120.0, stop=False)
-TOO_FAST = 'start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.1\nto_m_per_s = 0.4\n'
-START_S = 180.0  # first start compiles/loads numba caches; a loaded CI machine is slow
-
-
-def daq(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "daq.cli", *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
-
-
-class DaemonProc:
-    """``daq daemon --rig brake-2dof --sim`` as a subprocess; parses its ready line (``err``: its stderr lines)."""
-
-    def __init__(self, tmp: Path, *extra: str) -> None:
-        self.tmp = tmp
-        self.data = tmp / "data"
-        self.proc = subprocess.Popen([sys.executable, "-m", "daq.cli", "daemon", "--rig", "brake-2dof", "--sim",
-                                      "--data-dir", str(self.data), "--control", "tcp://127.0.0.1:0",
-                                      "--bus", "tcp://127.0.0.1:0", "--workdir", str(tmp / "dev"), *extra],
-                                     cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.err: list[str] = []
-        threading.Thread(target=self._read_err, daemon=True).start()
-        box: list[str] = []
-        th = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
-        th.start()
-        th.join(START_S)
-        line = box[0] if box else ""
-        if "ready" not in line:
-            self.proc.kill()
-            raise AssertionError(f"daemon did not start: {line!r}")
-        fields = dict(re.findall(r"(\w+)=(\S+)", line))
-        self.endpoint = fields["control"]
-        self.sim_control = fields["sim_control"]
-        self.sim_pid = int(fields["sim_bench_pid"])
-        self.rest: list[str] = []
-        threading.Thread(target=lambda: self.rest.extend(self.proc.stdout), daemon=True).start()
-
-    def _read_err(self) -> None:
-        for line in self.proc.stderr:
-            self.err.append(line)
-            sys.stderr.write(line)  # still shown by pytest on failure
-
-    def ctl(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-        return daq("ctl", "--endpoint", self.endpoint, *args, timeout=timeout)
-
-    def run_long_ramp(self, record: Path | None = None) -> None:
-        """Start recording to ``record`` (if given) and the long ramp, and wait until the belt is at speed."""
-        ramp = self.tmp / "long.toml"
-        ramp.write_text(LONG)
-        if record is not None:
-            assert self.ctl("record", "start", "--path", str(record)).returncode == 0
-        assert self.ctl("ramp", str(ramp), "--no-wait").returncode == 0
-        _wait_for(lambda: self.sim()["belt_speed"] > 0.149, 30, "the belt at speed")
-
-    def status(self) -> dict:
-        r = self.ctl("status", "--json")
-        assert r.returncode == 0, r.stderr
-        return json.loads(r.stdout)
-
-    def sim(self) -> dict:
-        return sim_request(self.sim_control, "status")
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        try:  # the bench outlives the daemon by design: end it (unless a later daemon on it already did)
-            if pid_alive(self.sim_pid):
-                sim_request(self.sim_control, "exit", timeout_s=2.0)
-        except TimeoutError:
-            pass
-        _wait_gone(self.sim_pid, 10.0)
-        if pid_alive(self.sim_pid):
-            os.kill(self.sim_pid, signal.SIGKILL)
-
-
-def _wait_gone(pid: int, timeout: float) -> bool:
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if not pid_alive(pid):
-            return True
-        time.sleep(0.05)
-    return not pid_alive(pid)
-
-
-def _wait_for(pred, timeout: float, what: str):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        got = pred()
-        if got:
-            return got
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def _kinds(f: h5py.File) -> list[str]:
-    return [k.decode() if isinstance(k, bytes) else k for k in f["events"]["kind"]]
+pytestmark = pytest.mark.slow  # every test here runs against a real daemon
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +42,9 @@ def test_record_start_in_a_folder_that_cannot_be_written_is_one_input_error(daem
         assert r.returncode == 2, r.stdout + r.stderr
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith(f"daq: error: {bad}: path: cannot write in "), r.stderr
-    assert daemon.status()["recording"] is None  # nothing started, nothing left half-open
+    r = daemon.ctl("status", "--json")  # (the other tests read status over the socket: DaemonProc.status)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["recording"] is None  # nothing started, nothing left half-open
 
 
 def test_ctl_ramp_runs_and_the_recording_holds_every_channel_and_the_estimator(daemon):
@@ -175,7 +68,7 @@ def test_ctl_ramp_runs_and_the_recording_holds_every_channel_and_the_estimator(d
         streams = f["streams"]
         channels = {c for s in streams.values() for c in s.keys()} - {"t", "device_t"}
         assert set(rig.channels) <= channels, set(rig.channels) - channels  # every channel of the rig
-        kinds = _kinds(f)
+        kinds = event_kinds(f)
         for bad in ("lost_frames", "lost_blocks", "gap", "disconnected", "rejected", "stop_truncated"):
             assert bad not in kinds, bad  # nothing that would explain (or hide) a gap
         laser = streams["laser_serial"]
@@ -252,8 +145,8 @@ def test_kill9_of_the_recorder_status_says_so_the_file_opens_and_a_new_recording
     with ControlClient(daemon.endpoint, timeout_s=10.0) as c:
         os.kill(pid, signal.SIGKILL)
         t0 = time.monotonic()
-        st = _wait_for(lambda: (r := c.request("status").result)["recording_failure"] and
-                       r["recording_failure"]["recovered"] and r, 10, "status to report the dead recorder")
+        st = wait_for(lambda: (r := c.request("status").result)["recording_failure"] and
+                      r["recording_failure"]["recovered"] and r, 10, "status to report the dead recorder")
         said_s = time.monotonic() - t0
     print(f"status reported the dead recorder {said_s:.2f} s after kill -9, file recovered in "
           f"{1000 * st['recording_failure']['recovery_s']:.1f} ms")
@@ -265,7 +158,7 @@ def test_kill9_of_the_recorder_status_says_so_the_file_opens_and_a_new_recording
     assert "recording ENDED UNEXPECTEDLY" in text and "SIGKILL" in text and "recovered" in text
     assert f"(pid {pid})" not in text and "recording off" in text
     with h5py.File(out, "r") as f:  # a plain open, as MATLAB's would be: no recover() by hand
-        assert f["streams/laser_serial/x1"].size > 100 and "start" in _kinds(f)
+        assert f["streams/laser_serial/x1"].size > 100 and "start" in event_kinds(f)
     after = daemon.tmp / "after-crash.h5"
     r = daemon.ctl("record", "start", "--path", str(after))
     assert r.returncode == 0, r.stderr
@@ -273,14 +166,14 @@ def test_kill9_of_the_recorder_status_says_so_the_file_opens_and_a_new_recording
     assert st["recording"]["alive"] and st["recording_failure"] is None
     assert daemon.ctl("record", "stop").returncode == 0
     with h5py.File(after) as f:  # the new run keeps the record of the lost one
-        assert "previous_recording_lost" in _kinds(f)
+        assert "previous_recording_lost" in event_kinds(f)
 
 
 def test_after_stop_status_commands_0_and_measures_the_belt_at_rest(daemon):
     daemon.run_long_ramp()
     assert daemon.status()["belt"]["commanded"] == pytest.approx(0.15)
     assert daemon.ctl("stop").returncode == 0
-    st = _wait_for(lambda: abs((s := daemon.status())["belt"]["measured"]) < 2e-3 and s, 30, "the belt at rest")
+    st = wait_for(lambda: abs((s := daemon.status())["belt"]["measured"]) < 2e-3 and s, 30, "the belt at rest")
     belt, ramp_st = st["belt"], st["ramp"]
     assert ramp_st["state"] == "stopped" and ramp_st["commanded"] == 0.0 and belt["commanded"] == 0.0
     assert belt["setpoint"] == 0.0 and ramp_st["measured"] == belt["measured"] and belt["age_s"] < 1.0
@@ -296,9 +189,9 @@ def test_sigterm_ramps_down_exits_0_and_closes_the_recording(tmp_path):
         d.proc.send_signal(signal.SIGTERM)
         assert d.proc.wait(60) == 0
         assert any("controlled ramp-down" in line for line in d.rest)
-        assert _wait_gone(d.sim_pid, 30)  # a clean shutdown also ends the bench it started (at rest)
+        assert wait_gone(d.sim_pid, 30)  # a clean shutdown also ends the bench it started (at rest)
         with h5py.File(out) as f:  # closed and readable
-            kinds = _kinds(f)
+            kinds = event_kinds(f)
             vb = f["streams/motor/vb"][()]
         assert "ramp_stopped" in kinds and kinds[-1] == "stop" and "watchdog" not in kinds
         assert vb.max() > 0.14 and abs(vb[-1]) < 5e-3  # the ramp-down is in the file, down to rest
@@ -311,7 +204,7 @@ def test_sigterm_ramps_down_exits_0_and_closes_the_recording(tmp_path):
 
 def test_curve_socket_no_keys_refused_observer_reads_operator_commands(tmp_path):
     keys = tmp_path / "keys"
-    r = daq("ctl", "keygen", str(keys), "--operator", "alice", "--observer", "olga")
+    r = daq_process("ctl", "keygen", str(keys), "--operator", "alice", "--observer", "olga")
     assert r.returncode == 0, r.stderr
     d = DaemonProc(tmp_path, "--keys", str(keys))  # CURVE forced on loopback
     try:
@@ -326,15 +219,15 @@ def test_curve_socket_no_keys_refused_observer_reads_operator_commands(tmp_path)
         r = d.ctl("--timeout", "1.5", "status")  # ctl without keys: no answer, exit 1
         assert r.returncode == 1 and "no reply" in r.stderr
         olga = str(keys / "clients" / "olga")
-        r = daq("ctl", "--endpoint", d.endpoint, "--keys", olga, "status", "--json")
+        r = daq_process("ctl", "--endpoint", d.endpoint, "--keys", olga, "status", "--json")
         assert r.returncode == 0 and json.loads(r.stdout)["rig"] == "brake-2dof"
         ramp = tmp_path / "short.toml"
         ramp.write_text(SHORT)
         for args in (("ramp", str(ramp)), ("stop",), ("estop",), ("record", "start")):
-            r = daq("ctl", "--endpoint", d.endpoint, "--keys", olga, *args)
+            r = daq_process("ctl", "--endpoint", d.endpoint, "--keys", olga, *args)
             assert r.returncode == 1 and FORBIDDEN in r.stderr, args
         assert d.sim()["motor_state"] == "DISABLED"  # the observer's ramp never reached the motor
-        r = daq("ctl", "--endpoint", d.endpoint, "--keys", str(keys / "clients" / "alice"), "stop")
+        r = daq_process("ctl", "--endpoint", d.endpoint, "--keys", str(keys / "clients" / "alice"), "stop")
         assert r.returncode == 0 and json.loads(r.stdout) == {"stopping": True}
     finally:
         d.close()

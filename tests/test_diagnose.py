@@ -39,6 +39,7 @@ def foreign_csv(path, rec):
                         f"{rec.channels['x1'][i]:.7f}", "10.000"])
 
 
+@pytest.mark.slow
 def test_loop_from_the_command_line_on_a_csv_no_code_of_ours_wrote(tmp_path):
     rec = simulate(load_rig("brake-2dof"), effects=[parse_effect("accel-sign")], rate=1000.0, seed=11, duration=12.0)
     foreign_csv(tmp_path / "lab.csv", rec)
@@ -72,6 +73,7 @@ def test_loop_from_the_command_line_on_a_csv_no_code_of_ours_wrote(tmp_path):
     assert len(r.stdout.strip().splitlines()) == 2 and (tmp_path / "h.png").stat().st_size > 5_000
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line_and_exit_2(tmp_path):
     (tmp_path / "m.toml").write_text('rig = "brake-2dof"\nlaw = "brake-eq7"\n[effects.stick-time]\ngain = "x"\n')
     (tmp_path / "d.csv").write_text("t,x1,phi\n0,0,0\n0.001,0,0\n")
@@ -88,6 +90,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         assert not (tmp_path / "rep").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rig, hidden, rate", [("drum-pendulum", "bearing-friction", 1000.0),
                                                ("brake-2dof", "temperature", 100.0),
                                                ("brake-2dof", "stick-time", 100.0)])
@@ -106,6 +109,7 @@ def test_hidden_effect_is_ranked_first_and_removes_most_of_the_excess(rig, hidde
     assert d.candidates[0].reduction >= 0.7
 
 
+@pytest.mark.slow
 def test_seed_model_without_normal_load_gets_it_back_and_clean_data_gets_nothing():
     cfg = load_rig("brake-2dof")
     rec = simulate(cfg, rate=1000.0, seed=22, duration=15.0)
@@ -159,6 +163,7 @@ def test_the_fewest_held_out_windows_that_can_pass_the_consistency_gate():
         assert z_attainable(k) == pytest.approx(stats.norm.isf(p), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_serial_and_parallel_fits_are_the_same_fits(brake_cfg, monkeypatch):
     """Issue 25: 'one worker instead of two' may not change a conclusion, so it may not change a fit: the pool's
     extension fits equal the serial ones to the bit (nfev and success too: the pool had returned 0 and True), and

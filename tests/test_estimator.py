@@ -273,6 +273,7 @@ def test_end_to_end_over_zeromq(brake_cfg, runs):
     assert any(e.kind == "friction_fit" for e in events)
 
 
+@pytest.mark.slow
 def test_bench_estimator_reports_its_figures_beside_the_baseline():
     """A 1 s run of `daq bench estimator` (the figures themselves are the benchmark's job, not asserted)."""
     from daq.bench.estimator import bench_estimator, format_estimator

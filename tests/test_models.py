@@ -138,6 +138,7 @@ def test_noise_floor_matches_the_sensor_noise(brake_cfg):
     assert abs(f.rms("x1", "all") - floor) < 0.2 * floor
 
 
+@pytest.mark.slow
 def test_user_effect_from_a_file_explains_a_hidden_temperature_effect(tmp_path, brake_cfg):
     """A user's own effect file (not in the package) is fitted like a catalog effect."""
     path = write(tmp_path, "my_temp.py", (
@@ -201,6 +202,7 @@ def test_bounded_step_leaves_a_held_parameter_out_and_reaches_the_constrained_op
     np.testing.assert_allclose(bounded_step(S, rhs2, x2, lo, hi), np.linalg.solve(S, rhs2))
 
 
+@pytest.mark.slow
 def test_a_models_own_fit_goes_on_past_its_iteration_limit_while_it_converges(brake_cfg):
     """What compare reports and diagnose judges against is a converged fit: stopped at its limit while the cost
     still falls, the fit goes on (up to CONVERGE_ITER in all) and ends lower; a candidate's fit (warm) does not."""

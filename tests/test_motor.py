@@ -100,6 +100,7 @@ def test_acceleration_limit_shapes_the_ramp(bench):
         drv.set_accel(5.0)
 
 
+@pytest.mark.slow
 def test_watchdog_brings_belt_to_rest_when_heartbeats_stop(bench):
     rig, port, sim, drv = bench
     drv.enable()

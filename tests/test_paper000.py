@@ -75,6 +75,7 @@ def law_analysis(seed_recs):
     return belt_law(_runs(seed_recs))
 
 
+@pytest.mark.slow
 def test_kinetic_law_recovered_by_output_error(law_analysis):
     res = law_analysis.result
     for k, tol in REL_TOL.items():
@@ -88,6 +89,7 @@ def test_kinetic_law_recovered_by_output_error(law_analysis):
     assert max(r.w_max for r in res.recordings) > 1.5 * TRUE_LAW["w_min"]
 
 
+@pytest.mark.slow
 def test_equation_error_is_biased_where_output_error_is_not(law_analysis):
     """The SPEC's hint, measured: the paper's least squares on twice-differentiated positions
     misses the branch amplitude by several of its own standard deviations; output error does not."""
@@ -97,6 +99,7 @@ def test_equation_error_is_biased_where_output_error_is_not(law_analysis):
     assert abs(oe.value - TRUE_LAW["amp"]) < abs(ee.value - TRUE_LAW["amp"]) / 3
 
 
+@pytest.mark.slow
 def test_static_law_recovered(law_analysis):
     res = law_analysis.result
     assert res.static is not None
@@ -132,6 +135,7 @@ def test_stick_detection_and_transition_bias(seed_recs):
     assert near_rms > 2 * kept_rms  # the transitions are where the bias lives
 
 
+@pytest.mark.slow
 def test_accel_sign_off_gives_no_branch_difference_and_flat_static_limit():
     off = [EffectRequest("accel-sign", {"amp": 0.0}), EffectRequest("stick-time", {"gain": 0.0}),
            EffectRequest("force-rate", {"gain": 0.0})]
@@ -147,6 +151,7 @@ def test_accel_sign_off_gives_no_branch_difference_and_flat_static_limit():
     assert any("not all determined" in w for w in res.warnings)  # two belt speeds: two conditions
 
 
+@pytest.mark.slow
 def test_two_masses_law_recovered():
     """Every mass of a chain rides the same belt with the same law: pooled over both contacts."""
     recs = [_sim(2, vb, 5.0, seed=20 + k) for k, vb in enumerate((0.2, 0.3))]
@@ -213,6 +218,7 @@ def test_constructed_period_three_trajectory():
 # ----------------------------------------------------------------------------- CLI
 
 
+@pytest.mark.slow
 def test_cli_end_to_end(tmp_path, capsys, seed_recs, poincare_recs):
     files = []
     for k in (1, 3):

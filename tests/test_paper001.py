@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import expect_error
 from scipy import signal as sps
 from scipy.signal import find_peaks
 
@@ -19,7 +20,6 @@ from daq.io.interchange import write_recording
 from daq.physics import brake2dof
 from daq.ramps import ramp_table, seed_ramp
 from daq.sim.run import simulate
-from tests.helpers import expect_error
 
 
 def _with_law(cfg, mu0: float, gamma: float):
@@ -259,6 +259,7 @@ def test_period_doubling_in_the_160s_run(brake_cfg):
 # --------------------------------------------------------------------------- command line
 
 
+@pytest.mark.slow
 def test_cli_end_to_end(runs, tmp_path, capsys):
     rec, _, _ = runs["low-1kHz"]
     data = tmp_path / "run.h5"

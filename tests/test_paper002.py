@@ -77,6 +77,7 @@ def half_thrust(tmp_path_factory):
     return rec, path
 
 
+@pytest.mark.slow
 def test_law3_recovered_from_a_simulated_cell(cell):
     res = cell[2]
     f = res.fit

@@ -64,6 +64,7 @@ def _write(tmp_path: Path, text: str, name: str = "ramp.toml") -> Path:
     return p
 
 
+@pytest.mark.slow
 def test_toml_ramp_runs_at_rate_and_belt_follows(bench, tmp_path):
     cfg, hw, motor = bench
     rig = hw.rig
@@ -209,6 +210,7 @@ def test_regulator_error_mid_ramp_aborts_with_reason(bench, tmp_path):
     assert runner.error is not None
 
 
+@pytest.mark.slow
 def test_seed_ramp_time_scaled(bench):
     """Paper 001 eq. (11) with V0 = 0.17 m/s, run in 3 s instead of Tmax = 45 s (time_scale = 3/45)."""
     cfg, hw, motor = bench

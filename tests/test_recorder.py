@@ -156,6 +156,7 @@ def event_table(f: h5py.File) -> dict[str, list]:
 # ---------------------------------------------------------------- crash safety
 
 
+@pytest.mark.slow
 def test_kill_9_leaves_a_readable_file_missing_at_most_the_last_second(tmp_path, pub, recorder):
     out = tmp_path / "run.h5"
     rp = recorder(out, "--flush-s", "0.25")
@@ -277,6 +278,7 @@ def tiny_pub():
     p.close()
 
 
+@pytest.mark.slow
 def test_drops_are_counted_in_the_event_table(tmp_path, recorder, tiny_pub):
     """A stopped recorder with a one-message queue: every dropped block appears in a lost_blocks event."""
     pub = tiny_pub

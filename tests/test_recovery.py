@@ -21,6 +21,8 @@ import json
 import pytest
 from recovery_table import Case, _run, conclusion, perturbed_diagnosis, run_case
 
+pytestmark = pytest.mark.slow  # each case is the user's whole path, tens of seconds
+
 PAIR = Case("accel-body+belt-drive", "brake-2dof", ("accel-body:amp=0.12",
                                                    "belt-drive:tau=0.15,ripple=0.05,wavelength=0.9"),
             ("accel-sign", "belt-speed"), "A", 100.0, kind="pair")  # 2.5 min: tests/long/test_recovery_pair.py

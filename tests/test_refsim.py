@@ -361,6 +361,7 @@ def test_sensors_noise_quantisation_hold_spikes_jitter():
     assert temp[150] == 22.0 and temp[1050] == 23.0 and temp[1299] == 23.25  # 22.1 -> 22.0 (lsb 0.25), ...
 
 
+@pytest.mark.slow
 def test_make_cli_writes_csv_and_truth_sidecar(tmp_path):
     out = tmp_path / "r.csv"
     cmd = [sys.executable, str(REFSIM / "make.py"), "brake-2dof", "--effect", "stick-log:b=0.05,theta=0.1",
@@ -384,6 +385,7 @@ def test_make_cli_writes_csv_and_truth_sidecar(tmp_path):
     assert not list(tmp_path.glob("bad*")) and not list(tmp_path.glob(".refsim-*"))
 
 
+@pytest.mark.slow
 def test_generation_speed_20s_at_1kHz():
     w0 = time.perf_counter()
     rec = make.generate("brake-2dof", [], rate=1000.0, duration=20.0, seed=1)
@@ -397,6 +399,7 @@ def test_generation_speed_20s_at_1kHz():
 # ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_null_agrees_with_our_simulator(tmp_path):
     """Same seed ramp, nothing hidden: x1 over the first second, cycle features over 20 s."""
     daq("sim", "brake-2dof", "--duration", "20", "--truth", "--no-figure", "-o", "ours.csv", cwd=tmp_path)
@@ -416,6 +419,7 @@ def test_null_agrees_with_our_simulator(tmp_path):
         assert amp_m == pytest.approx(amp_o, rel=0.02)
 
 
+@pytest.mark.slow
 def test_drum_null_agrees_with_our_simulator(tmp_path):
     """Constant drum speed, nothing hidden: the pendulum's channels over 5 s (temp differs: own thermal model)."""
     daq("sim", "drum-pendulum", "--duration", "5", "--truth", "--no-figure", "-o", "ours.csv", cwd=tmp_path)
@@ -427,6 +431,7 @@ def test_drum_null_agrees_with_our_simulator(tmp_path):
         assert np.abs(mine[f"true_{name}"] - ours[f"truth_true_{name}"]).max() < tol, name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rig, rate", [("brake-2dof", 100.0), ("drum-pendulum", 100.0), ("drum-pendulum", 1000.0)])
 def test_null_recording_is_explained_by_our_seed_model(tmp_path, rig, rate):
     """Nothing hidden: daq's seed model, fitted, is as good as a perfect model (error within 15 % of its floor).
@@ -539,6 +544,7 @@ def test_belt_stick_time_ages_longer_sticks_more():
     assert level[slow].mean() > level[fast].mean() + 0.03
 
 
+@pytest.mark.slow
 def test_make_writes_belt_steps_and_a_two_mass_rig_file(tmp_path):
     rig_file = tmp_path / "rig2.toml"
     rig_file.write_text((ROOT / "rig_configs" / "belt-ndof.toml").read_text().replace("n_masses = 1", "n_masses = 2"))

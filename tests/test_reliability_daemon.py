@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 
 import h5py
-from test_daemon_e2e import LONG, ROOT, DaemonProc, _kinds, _wait_for
+import pytest
+from helpers import LONG, ROOT, DaemonProc, event_kinds, free_port, wait_for
 
 from daq.daemon.control import ControlClient
+
+pytestmark = pytest.mark.slow  # every test here starts a real daemon
 
 
 def test_a_watchdog_trip_while_the_daemon_lives_is_in_status_stderr_and_the_events_within_1_s(tmp_path):
@@ -31,15 +33,15 @@ def test_a_watchdog_trip_while_the_daemon_lives_is_in_status_stderr_and_the_even
         with ControlClient(d.endpoint, timeout_s=10.0) as c:
             os.kill(d.proc.pid, signal.SIGSTOP)  # no heartbeat: the regulator's watchdog stops the belt
             try:
-                _wait_for(lambda: d.sim()["motor_state"] == "WATCHDOG", 10, "the watchdog to trip")
+                wait_for(lambda: d.sim()["motor_state"] == "WATCHDOG", 10, "the watchdog to trip")
                 time.sleep(0.2)
             finally:
                 os.kill(d.proc.pid, signal.SIGCONT)
             t_cont = time.monotonic()
-            st = _wait_for(lambda: (r := c.request("status").result)["regulator"]["latched"] and r, 5,
-                           "status to say the regulator latched")
+            st = wait_for(lambda: (r := c.request("status").result)["regulator"]["latched"] and r, 5,
+                          "status to say the regulator latched")
             status_s = time.monotonic() - t_cont
-            line = _wait_for(lambda: next((x for x in d.err if "WATCHDOG" in x), None), 5, "a stderr line")
+            line = wait_for(lambda: next((x for x in d.err if "WATCHDOG" in x), None), 5, "a stderr line")
             stderr_s = time.monotonic() - t_cont
             reg = st["regulator"]
             assert reg["state"] == "WATCHDOG" and reg["watchdog_trips"] == 1
@@ -49,7 +51,7 @@ def test_a_watchdog_trip_while_the_daemon_lives_is_in_status_stderr_and_the_even
             assert not refused.ok and "latched in WATCHDOG" in refused.error, refused
             assert c.request("record_stop").ok
         with h5py.File(out, "r") as f:
-            kinds = _kinds(f)
+            kinds = event_kinds(f)
             t_event = float(f["events"]["host_time"][kinds.index("watchdog")])
         event_s = t_event - t_cont
         print(f"after SIGCONT: status {status_s:.2f} s, stderr {stderr_s:.2f} s, event {event_s:.2f} s")
@@ -59,20 +61,14 @@ def test_a_watchdog_trip_while_the_daemon_lives_is_in_status_stderr_and_the_even
         assert d.ctl("reset").returncode == 0
         ramp.write_text(LONG)
         assert d.ctl("ramp", str(ramp), "--no-wait").returncode == 0  # after reset the belt moves again
-        _wait_for(lambda: d.sim()["belt_speed"] > 0.05, 30, "the belt moving")
+        wait_for(lambda: d.sim()["belt_speed"] > 0.05, 30, "the belt moving")
         assert d.ctl("stop").returncode == 0
     finally:
         d.close()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_a_second_daemon_for_the_same_rig_with_another_data_dir_is_refused_in_one_line(tmp_path):
-    control, bus = f"tcp://127.0.0.1:{_free_port()}", f"tcp://127.0.0.1:{_free_port()}"
+    control, bus = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     first = DaemonProc(tmp_path / "a", "--control", control, "--bus", bus)
     try:
         t0 = time.monotonic()
@@ -88,6 +84,6 @@ def test_a_second_daemon_for_the_same_rig_with_another_data_dir_is_refused_in_on
         assert "brake-2dof" in lines[0] and f"pid {first.proc.pid}" in lines[0], lines[0]
         assert not (tmp_path / "b" / "dev").exists()  # refused before it started a bench of its own
         # the first goes on (its rate is measured over its first seconds: 0.0 when read 0.8 s after its start)
-        _wait_for(lambda: first.status()["streams"]["motor"]["rate_hz"] > 50, 15, "the first daemon's motor at rate")
+        wait_for(lambda: first.status()["streams"]["motor"]["rate_hz"] > 50, 15, "the first daemon's motor at rate")
     finally:
         first.close()

@@ -11,7 +11,6 @@ and a file that could not be recovered. The same rules are also checked on a sim
 from __future__ import annotations
 
 import shutil
-import socket
 import subprocess
 import sys
 import threading
@@ -22,6 +21,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from helpers import free_port
 
 from daq.errors import InputError
 from daq.io.stream_format import StreamMeta
@@ -30,12 +30,6 @@ from daq.streaming.bus import Publisher
 
 ROOT = Path(__file__).resolve().parent.parent
 Usage = namedtuple("Usage", "total used free")
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
@@ -55,8 +49,9 @@ def _recorder(out: Path, endpoint: str, min_free_mb: float) -> subprocess.Popen:
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_on_a_small_filesystem_the_recorder_stops_before_it_is_full_and_the_file_opens(small_fs):
-    endpoint = f"tcp://127.0.0.1:{_port()}"
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
     pub = Publisher(endpoint)
     meta = StreamMeta(stream="fast", channels=tuple(f"c{i}" for i in range(8)), units=("V",) * 8, rate_hz=1e5)
     stop = threading.Event()

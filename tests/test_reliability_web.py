@@ -1,6 +1,6 @@
 """Issue 29: a hostile viewer of the live page, through a raw HTTP client against ``daq daemon --sim --web``.
 
-One real daemon with CURVE keys and the page (tests/test_web.py's ``Rig``: a page is an observer
+One real daemon with CURVE keys and the page (tests/helpers.py's ``WebRig``: a page is an observer
 unless it carries the operator token). Before the fixes: a 300 MB body was forwarded whole to the
 daemon (8.8 s, 1.38 GB, a watchdog stop); a token-carrying POST from another site's page was
 obeyed; an observer could reset the latency figures; 16 token-less WebSockets locked the operator's
@@ -18,8 +18,7 @@ import time
 from urllib.parse import urlsplit
 
 import pytest
-from test_daemon_e2e import _wait_for
-from test_web import Rig
+from helpers import WebRig, wait_for
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
@@ -32,17 +31,17 @@ RATE_HZ = WebCfg.model_fields["observer_rate_hz"].default
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
-    r = Rig(tmp_path_factory.mktemp("web-hostile"))
+    r = WebRig(tmp_path_factory.mktemp("web-hostile"))
     yield r
     r.close()
 
 
-def _conn(rig: Rig) -> http.client.HTTPConnection:
+def _conn(rig: WebRig) -> http.client.HTTPConnection:
     u = urlsplit(rig.url)
     return http.client.HTTPConnection(u.hostname, u.port, timeout=30)
 
 
-def _post(rig: Rig, path: str, body: bytes, headers: dict[str, str]) -> tuple[int, dict]:
+def _post(rig: WebRig, path: str, body: bytes, headers: dict[str, str]) -> tuple[int, dict]:
     c = _conn(rig)
     try:
         c.request("POST", path, body=body, headers={"X-Daq-Page": "1", "Content-Type": "application/json",
@@ -53,11 +52,11 @@ def _post(rig: Rig, path: str, body: bytes, headers: dict[str, str]) -> tuple[in
         c.close()
 
 
-def _operator(rig: Rig) -> dict[str, str]:
+def _operator(rig: WebRig) -> dict[str, str]:
     return {"Authorization": f"Bearer {rig.token}", "Origin": rig.url.rstrip("/")}
 
 
-def _stats(rig: Rig) -> dict:
+def _stats(rig: WebRig) -> dict:
     """``/api/stats`` as the operator: polled in a wait loop, a token-less poll would be rate-limited."""
     c = _conn(rig)
     try:
@@ -81,10 +80,11 @@ def _viewer(ws_url: str, within_s: float = 10.0):
             time.sleep(1.0 / RATE_HZ)
 
 
-def _traceback_lines(rig: Rig) -> list[str]:
+def _traceback_lines(rig: WebRig) -> list[str]:
     return [line for line in rig.d.err if "Traceback" in line or "Error" in line.split(":")[0]]
 
 
+@pytest.mark.slow
 def test_a_body_over_1_mib_is_refused_with_413_while_it_streams_and_never_reaches_the_daemon(rig):
     before = rig.status()["streams"]["motor"]["samples"]
     # declared: refused on the header, before a byte of the body is read
@@ -138,6 +138,7 @@ def test_a_body_over_1_mib_is_refused_with_413_while_it_streams_and_never_reache
     assert not st["regulator"]["latched"]
 
 
+@pytest.mark.slow
 def test_a_command_with_the_token_from_another_sites_page_is_refused(rig):
     body = json.dumps({"op": "note", "args": {"text": "from evil.example"}}).encode()
     status, reply = _post(rig, "/api/command", body, {**_operator(rig), "Origin": "http://evil.example"})
@@ -146,6 +147,7 @@ def test_a_command_with_the_token_from_another_sites_page_is_refused(rig):
     assert status == 200 and reply["ok"], reply  # the same request from the page itself is obeyed
 
 
+@pytest.mark.slow
 def test_a_command_with_a_key_twice_is_refused_by_the_page_process(rig):
     raw = b'{"op": "status", "op": "estop", "args": {}}'
     status, reply = _post(rig, "/api/command", raw, _operator(rig))
@@ -153,6 +155,7 @@ def test_a_command_with_a_key_twice_is_refused_by_the_page_process(rig):
     assert not rig.status()["regulator"]["latched"]
 
 
+@pytest.mark.slow
 def test_an_observer_cannot_reset_the_latency_figures(rig):
     status, reply = _post(rig, "/api/latency/reset", b"", {"Origin": rig.url.rstrip("/")})
     assert status == 403, reply
@@ -160,6 +163,7 @@ def test_an_observer_cannot_reset_the_latency_figures(rig):
     assert status == 200 and reply == {"reset": True}
 
 
+@pytest.mark.slow
 def test_token_less_viewers_never_lock_out_the_operators_page(rig):
     ws_url = rig.url.replace("http://", "ws://") + "ws"
     viewers, refused = contextlib.ExitStack(), 0
@@ -180,11 +184,12 @@ def test_token_less_viewers_never_lock_out_the_operators_page(rig):
     finally:
         viewers.close()
     t0 = time.monotonic()
-    _wait_for(lambda: _stats(rig)["pages"] <= 1, 20, "closed viewers to free their places")
+    wait_for(lambda: _stats(rig)["pages"] <= 1, 20, "closed viewers to free their places")
     print(f"{admitted} viewers admitted, {refused} refused; the operator's page connected; places free "
           f"{time.monotonic() - t0:.2f} s after the viewers closed")
 
 
+@pytest.mark.slow
 def test_invalid_utf8_on_a_websocket_closes_it_without_a_traceback(rig):
     before = len(rig.d.err)
     with _viewer(rig.url.replace("http://", "ws://") + "ws") as ws:
@@ -195,9 +200,10 @@ def test_invalid_utf8_on_a_websocket_closes_it_without_a_traceback(rig):
     time.sleep(1.0)
     new = rig.d.err[before:]
     assert not [line for line in new if "Traceback" in line or "Exception" in line], "".join(new)
-    _wait_for(lambda: _stats(rig)["pages"] <= 1, 5, "the session to be gone")
+    wait_for(lambda: _stats(rig)["pages"] <= 1, 5, "the session to be gone")
 
 
+@pytest.mark.slow
 def test_token_less_requests_are_rate_limited_per_address_and_the_operator_never(rig):
     """A burst of token-less (observer) commands: served until the address's bucket is empty, then 429 with
     Retry-After, never forwarded; the operator's request in the same second is served at once."""

@@ -49,6 +49,7 @@ def collect(drivers, seconds):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rig", ["brake-2dof", "drum-pendulum", "belt-ndof"])
 def test_every_channel_flows_and_the_motor_drives(rig, tmp_path):
     cfg = load_rig(rig)
@@ -82,6 +83,7 @@ def test_every_channel_flows_and_the_motor_drives(rig, tmp_path):
             drivers.close()
 
 
+@pytest.mark.slow
 def test_brake_alternative_wiring_serial_stream(tmp_path):
     data = load_rig("brake-2dof").model_dump(mode="json", exclude_none=True)
     data["instruments"]["can"]["enabled"] = False

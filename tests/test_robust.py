@@ -92,6 +92,7 @@ def belt_glitched():
     return cfg, rec, Recording(rec.rig, rec.t, {**rec.channels, "x1": x}, rec.units, rec.meta)
 
 
+@pytest.mark.slow
 def test_our_irls_levenberg_marquardt_reaches_scipys_huber_estimate(belt_glitched):
     """The same residuals (model - measured over 6 windows, two law parameters and every window's start values
     free) minimised under Huber's loss by our fit (least squares, then Huber's stage from there, as Session does)
@@ -130,6 +131,7 @@ def test_our_irls_levenberg_marquardt_reaches_scipys_huber_estimate(belt_glitche
     assert max(abs(ls.values[n] - ref.x[i]) / ours.std[n] for i, n in enumerate(free)) > 0.3
 
 
+@pytest.mark.slow
 def test_on_clean_data_the_robust_fit_is_the_least_squares_fit(belt_glitched):
     """Gaussian noise only: Huber's stage starts where least squares converged and barely moves (< 0.15 of each
     parameter's standard error); the held-out error is the same to 1 %."""
@@ -162,6 +164,7 @@ def test_bursts_of_up_to_three_samples_are_repaired_and_their_neighbours_left_al
     assert d[499] > d[500] and d[502] > d[501] and d[500] < 15e-6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rate", [100.0, 1000.0])
 def test_clean_records_of_the_reference_simulator_are_not_touched(rate):
     """At 100 Hz a cubic across a gap of two or three samples cannot bridge the brake's motion (runs of three
@@ -175,6 +178,7 @@ def test_clean_records_of_the_reference_simulator_are_not_touched(rate):
         assert idx.size == 0, (rate, name, idx[:10])
 
 
+@pytest.mark.slow
 def test_a_lab_slider_record_with_bursts_goes_through_the_users_path_at_the_noise_floor(tmp_path):
     """The far-from-config spring-slider of test_belt_model (independent lab-frame simulator, .mat with t and F/mg
     only, quantised) with 25 bursts of one to three samples 30-60 noise levels off: `import --map` -> `model init`
@@ -229,6 +233,7 @@ def test_clock_jitter_is_read_from_the_white_part_of_the_residual_and_a_smooth_m
     assert timing_noise(noise, v) == 0.0
 
 
+@pytest.mark.slow
 def test_a_jittered_record_has_a_floor_that_counts_the_jitter_and_a_clean_one_keeps_its_floor(tmp_path):
     """The brake at 100 Hz, nothing hidden, clock jitter of 2 % of a period (0.2 ms, 34 um a sample where the block
     rides the belt at 0.17 m/s): the seed model is the true model, so its error is what a perfect model shows and

@@ -44,6 +44,7 @@ def test_the_law_is_odd_and_its_inverse_is_exact():
     assert rsf_mu(1e-4, 0.5, MU0, A, B, V0) == pytest.approx(MU0 + A * math.log(10.0) + B * 0.5, abs=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("law", ["aging", "slip"])
 def test_a_step_ends_at_the_steady_state_and_b_zero_leaves_only_the_direct_effect(law):
     rt, rv = velocity_steps([V0, 10 * V0], 600e-6)  # 30 Dc after the step
@@ -70,6 +71,7 @@ def test_the_integrator_agrees_with_an_independent_one_and_converges(law):
     assert errs[0] > errs[1] > errs[2]
 
 
+@pytest.mark.slow
 def test_the_standard_errors_cover_the_truth_over_20_seeds():
     """Both laws, both protocols, 1 kHz and 100 Hz: a, b and Dc within 2 standard errors in >= 85 % of the
     (event, seed) pairs (nominal 95 %) and within 1 in 45-88 % (nominal 68 %); no fit fails. Measured
@@ -121,6 +123,7 @@ def users_record(tmp_path: Path, s: RsfSlider, rt, rv, rate: float, seed: int, n
     return h5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("law", ["aging", "slip"])
 def test_the_users_path_names_the_law_and_reports_the_table(tmp_path, law):
     s = RsfSlider(a=A, b=B, dc=DC, mu0=MU0, v0=V0, k=3000.0, n=1.0, m=0.01, law=law)
@@ -247,6 +250,7 @@ def users_rsf_case(tmp_path: Path, law: str, rate: float, seed: int, ratio: floa
     return h5, rig
 
 
+@pytest.mark.slow
 def test_rate_and_state_added_to_the_users_model_takes_the_error_to_the_floor(tmp_path):
     """import -> model init -> compare -> model add rate-and-state -> compare on a 100 Hz velocity-step record with
     the aging law hidden: the error falls from many times the floor to it (>= 70 % of the excess removed), the

@@ -12,12 +12,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from daq.daemon.soak import slope_with_bound
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.mark.slow
 def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(tmp_path):
     out = tmp_path / "soak"
     r = subprocess.run([sys.executable, "-m", "daq.cli", "soak", "--minutes", "0.5", "--record-every", "0.25",
@@ -43,6 +45,7 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
     assert "soak: daemon pid" in r.stderr  # progress on stderr, the JSON alone on stdout
 
 
+@pytest.mark.slow
 def test_bad_soak_input_is_one_line():
     r = subprocess.run([sys.executable, "-m", "daq.cli", "soak", "--minutes", "0"], cwd=ROOT, capture_output=True,
                        text=True, timeout=60, check=False)

@@ -9,34 +9,26 @@ saying so, rather than skip, because the page is what the operator uses.
 
 from __future__ import annotations
 
-import contextlib
-import json
 import math
 import os
 import re
 import signal
-import subprocess
-import sys
 import time
-import urllib.request
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from test_daemon_e2e import LONG, DaemonProc, _kinds, _wait_for
-from websockets.sync.client import connect
+from helpers import LONG, DaemonProc, WebRig, event_kinds, wait_for
 
 from daq.bench.web import headless_chromium
 from daq.cli.daemon import parse_web
-from daq.daemon.control import ControlClient
 from daq.errors import InputError
 from daq.io.stream_format import StreamMeta
 from daq.web.history import EnvelopeArchive, StreamHistory, envelope
 from daq.web.messages import WebCfg
 from daq.web.server import role_for
 
-ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = ("estop", "stop", "rec-start", "rec-stop", "note-add", "note-text")
 
 
@@ -110,43 +102,9 @@ def _chrome(tmp: Path):
                     "(deploy/system-packages.sh)")
 
 
-class Rig:
-    """The daemon under test, its operator link, and a CURVE operator client for status."""
-
-    def __init__(self, tmp: Path) -> None:
-        keys = tmp / "keys"
-        r = subprocess.run([sys.executable, "-m", "daq.cli", "ctl", "keygen", str(keys), "--operator", "alice"],
-                           cwd=ROOT, capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0, r.stderr
-        self.d = DaemonProc(tmp, "--keys", str(keys), "--web", "127.0.0.1:0")
-        line = _wait_for(lambda: next((x for x in self.d.err if "operator link" in x), None), 10, "the operator link")
-        self.url, self.token = re.search(r"(http://\S+/)#token=(\S+)", line).groups()
-        # a page that asks for frames and never reads one: it must cost nobody anything
-        self._stack = contextlib.ExitStack()
-        self.stalled = self._stack.enter_context(connect(self.url.replace("http://", "ws://") + "ws"))
-        self.stalled.send(json.dumps({"type": "view", "window_s": 10, "width": 1500}))
-        alice = keys / "clients" / "alice"
-        self.client = ControlClient(self.d.endpoint, client_secret_file=alice / "client.key_secret",
-                                    server_public_file=alice / "server.key", timeout_s=30.0)
-
-    def status(self) -> dict:
-        r = self.client.request("status")
-        assert r.ok, r.error
-        return r.result
-
-    def page_stats(self) -> dict:
-        with urllib.request.urlopen(self.url + "api/stats", timeout=10) as r:
-            return json.load(r)
-
-    def close(self) -> None:
-        self._stack.close()
-        self.client.close()
-        self.d.close()
-
-
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
-    r = Rig(tmp_path_factory.mktemp("web"))
+    r = WebRig(tmp_path_factory.mktemp("web"))
     yield r
     r.close()
 
@@ -158,15 +116,15 @@ def browser(tmp_path_factory):
     drv.quit()
 
 
-def _open(browser, rig: Rig, operator: bool) -> None:
+def _open(browser, rig: WebRig, operator: bool) -> None:
     """Load the page as the operator (the token in the link) or as an observer (no token anywhere)."""
     browser.get(rig.url)
     browser.execute_script("sessionStorage.clear()")
     browser.get("about:blank")  # a fragment alone would not reload the page
     browser.get(rig.url + (f"#token={rig.token}" if operator else ""))
     want = "operator" if operator else "observer: read only"
-    _wait_for(lambda: browser.find_element("id", "role").text == want, 20, f"the page to say {want!r}")
-    _wait_for(lambda: browser.find_element("id", "conn").text == "live"
+    wait_for(lambda: browser.find_element("id", "role").text == want, 20, f"the page to say {want!r}")
+    wait_for(lambda: browser.find_element("id", "conn").text == "live"
               and browser.execute_script("return document.querySelectorAll('#plot-belt canvas').length") > 0,
               30, "live plots")
 
@@ -179,6 +137,7 @@ def _message(browser) -> str:
     return browser.find_element("id", "cmd-msg").text
 
 
+@pytest.mark.slow
 def test_page_loads_with_no_console_errors(rig, browser):
     _open(browser, rig, operator=True)
     time.sleep(1.0)  # a few frames drawn
@@ -190,6 +149,7 @@ def test_page_loads_with_no_console_errors(rig, browser):
         assert word in text, word
 
 
+@pytest.mark.slow
 def test_plot_area_changes_between_two_screenshots_a_second_apart(rig, browser):
     _open(browser, rig, operator=True)
     area = browser.find_element("id", "belt-panel")
@@ -200,21 +160,22 @@ def test_plot_area_changes_between_two_screenshots_a_second_apart(rig, browser):
     assert first != second
 
 
+@pytest.mark.slow
 def test_a_note_typed_in_the_page_is_in_the_recordings_event_table(rig, browser):
     _open(browser, rig, operator=True)
     _click(browser, "rec-start")
-    st = _wait_for(lambda: (s := rig.status())["recording"] and s, 60, "the recording to start")
+    st = wait_for(lambda: (s := rig.status())["recording"] and s, 60, "the recording to start")
     path = Path(st["recording"]["path"])
-    _wait_for(lambda: browser.find_element("id", "rec-state").text.startswith("REC "), 10, "the page to show REC")
+    wait_for(lambda: browser.find_element("id", "rec-state").text.startswith("REC "), 10, "the page to show REC")
     text = f"pad reconditioned {time.time():.0f} (from the page)"
     browser.find_element("id", "note-text").send_keys(text)
     _click(browser, "note-add")
-    _wait_for(lambda: text in browser.find_element("id", "events").text, 10, "the note in the page's events")
+    wait_for(lambda: text in browser.find_element("id", "events").text, 10, "the note in the page's events")
     _click(browser, "rec-stop")
-    _wait_for(lambda: _message(browser).startswith("record_stop: "), 60, "the recording to close")
+    wait_for(lambda: _message(browser).startswith("record_stop: "), 60, "the recording to close")
     with h5py.File(path, "r") as f:
         ev = f["events"][()]
-        kinds = _kinds(f)
+        kinds = event_kinds(f)
         notes = [d.decode() if isinstance(d, bytes) else d for k, d in zip(kinds, ev["detail"]) if k == "note"]
         stop_count = int(ev["count"][kinds.index("stop")])
     assert text in notes and "record_stop" in kinds
@@ -225,19 +186,20 @@ def test_a_note_typed_in_the_page_is_in_the_recordings_event_table(rig, browser)
     assert frames[0] <= 2 and frames[-1] > 50, frames
 
 
+@pytest.mark.slow
 def test_stick_slip_cycles_appear_and_the_e_stop_button_brings_the_belt_to_rest(rig, browser):
     _open(browser, rig, operator=True)
     ramp = rig.d.tmp / "long.toml"
     ramp.write_text(LONG)
     r = rig.client.request("ramp", file=str(ramp))
     assert r.ok, r.error
-    _wait_for(lambda: (rig.status()["belt"]["measured"] or 0) > 0.1, 30, "the belt at speed")
+    wait_for(lambda: (rig.status()["belt"]["measured"] or 0) > 0.1, 30, "the belt at speed")
     # the belt sticks and slips at 0.15 m/s: the estimator's cycles reach the page's cycle plots
-    _wait_for(lambda: int(browser.find_element("id", "cycle-count").text.split()[0]) >= 3, 20, "cycles on the page")
+    wait_for(lambda: int(browser.find_element("id", "cycle-count").text.split()[0]) >= 3, 20, "cycles on the page")
     assert browser.execute_script("return document.querySelectorAll('#plot-cycles canvas').length") == 4
     t0 = time.monotonic()
     _click(browser, "estop")
-    st = _wait_for(lambda: abs((s := rig.status())["belt"]["measured"]) < 5e-3 and s, 15, "the belt at rest")
+    st = wait_for(lambda: abs((s := rig.status())["belt"]["measured"]) < 5e-3 and s, 15, "the belt at rest")
     print(f"belt at rest {time.monotonic() - t0:.2f} s after the page's E-STOP")
     assert rig.d.sim()["belt_speed"] == pytest.approx(0.0, abs=5e-3)
     assert st["regulator"]["latched"] and st["regulator"]["state"] == "ESTOP"
@@ -245,6 +207,7 @@ def test_stick_slip_cycles_appear_and_the_e_stop_button_brings_the_belt_to_rest(
     assert rig.client.request("reset").ok  # at rest: clear the latch for whatever runs next
 
 
+@pytest.mark.slow
 def test_an_observers_page_has_no_working_command(rig, browser):
     _open(browser, rig, operator=False)
     for element_id in COMMANDS:
@@ -272,6 +235,7 @@ def test_an_observers_page_has_no_working_command(rig, browser):
     assert after["motion"]["allowed"]
 
 
+@pytest.mark.slow
 def test_a_dead_web_process_is_reported_and_acquisition_goes_on(tmp_path):
     """kill -9 of the page's process: status (text and JSON) says so within 2 s, an event is published, the daemon
     and its streams go on (issue 15's closing note of 2026-11-25: the daemon did not watch its web process)."""
@@ -280,7 +244,7 @@ def test_a_dead_web_process_is_reported_and_acquisition_goes_on(tmp_path):
         web = d.status()["web"]
         assert web["alive"] and web["url"].startswith("http://127.0.0.1:")
         os.kill(web["pid"], signal.SIGKILL)
-        st = _wait_for(lambda: (s := d.status())["web"]["alive"] is False and s, 2.0, "status to say the page died")
+        st = wait_for(lambda: (s := d.status())["web"]["alive"] is False and s, 2.0, "status to say the page died")
         assert st["web"]["exit"] == -signal.SIGKILL
         assert "web page" in d.ctl("status").stdout and "ENDED (exit -9)" in d.ctl("status").stdout
         assert any("web page process ended unexpectedly" in line for line in d.err)
