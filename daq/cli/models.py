@@ -94,7 +94,20 @@ def _session(args: argparse.Namespace):
     from daq.models.spec import load_model
 
     model = load_model(args.model)
-    s = Session.open(args.data, model, args.rig, loss=args.loss)  # before the first progress line: a bad file is one line
+    data = args.data
+    if isinstance(data, list) and len(data) > 1:  # several recordings of one rig, judged together (issue 26)
+        from daq.models.multi_session import MultiSession
+
+        s = MultiSession.open(data, model, args.rig, loss=args.loss)  # every file loaded before the first line
+        print(f"{args.command}: {' + '.join(data)} against {model.describe()}", file=sys.stderr)
+        for p in s.parts:
+            say(f"{p.source}: {p.m.n} samples at {p.m.rate:g} Hz; {p.win.starts.size} windows "
+                f"({int(p.win.held_out.sum())} held out); noise " + ", ".join(f"{k} {v:.3g}" for k, v in p.m.sigma.items()))
+        say(f"{s.win.starts.size} windows of {(s.win.length - 1) / s.m.rate:.3f} s in all, one model for every record")
+        return model, s
+    if isinstance(data, list):
+        data = args.data = data[0]
+    s = Session.open(data, model, args.rig, loss=args.loss)  # before the first progress line: a bad file is one line
     print(f"{args.command}: {args.data} against {model.describe()}", file=sys.stderr)
     filled = s.rec.meta.get("filled")
     if filled:
@@ -234,7 +247,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.report:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
-        diagnose_figure(s, d, rep / "diagnose.png")
+        if len(getattr(s, "parts", ())) > 1:
+            say("several recordings: diagnose.json only (the figure is drawn for one recording)")
+        else:
+            diagnose_figure(s, d, rep / "diagnose.png")
         (rep / "diagnose.json").write_text(dumps_json(res))
         res["report"] = str(rep)
     if args.json:
@@ -313,8 +329,12 @@ def register(sub: argparse._SubParsersAction) -> None:
             p.add_argument("--form", help="one of the effect's forms (as diagnose names it; default: its first)")
         p.set_defaults(func=fn)
 
-    def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS")
+    def common(p: argparse.ArgumentParser, several: bool = False) -> None:
+        if several:
+            p.add_argument("data", nargs="+", help="recordings (.h5) or interchange CSV/TDMS of one rig: one model, "
+                                                   "shared parameters, each record its own windows and noise")
+        else:
+            p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS")
         p.add_argument("--model", required=True, help="model TOML")
         p.add_argument("--rig", help="rig of a CSV/TDMS file (default: the model's)")
         p.add_argument("--json", action="store_true")
@@ -335,7 +355,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("diagnose", help="which catalog effect is the model missing?")
-    common(p)
+    common(p, several=True)
     p.add_argument("--report", help="folder for figures and JSON")
     p.add_argument("--workers", type=int, help="processes for the candidate fits (default: all cores)")
     p.set_defaults(func=cmd_diagnose)

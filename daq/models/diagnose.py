@@ -132,7 +132,7 @@ def score(base: Fitted, current: Fitted, cand: Fitted, cands: tuple[Candidate, .
     reduction = (e0 - e1) / (e0 - floor) if e0 > floor else 0.0
     c0, c1 = robust_rms(current.ms_held[primary], cap), robust_rms(cand.ms_held[primary], cap)
     step = (c0 - c1) / (c0 - floor) if c0 > floor else 0.0
-    d = session.weighted(current.ms_held) - session.weighted(cand.ms_held)
+    d = session.weighted(current.ms_held, current.held.windows) - session.weighted(cand.ms_held, cand.held.windows)
     added = [k for k in cand.model.free_names() if k not in current.model.free_names()]
     new = {k: v for k, v in cand.values.items() if k in added}
     step_base = (current.rms(primary) - e1) / (e0 - floor) if e0 > floor else 0.0
@@ -203,7 +203,14 @@ def to_fit(gains: dict[Candidate, float], first: bool, worth: float = MIN_GAIN) 
 
 
 def window_context(session: Session) -> dict[str, np.ndarray]:
-    """Per window, the mean of quantities a residual might follow when no catalog effect explains it."""
+    """Per window, the mean of quantities a residual might follow when no catalog effect explains it (several
+    records: each record's windows from its own data, and which record it is)."""
+    parts = getattr(session, "parts", None)
+    if parts is not None and len(parts) > 1:
+        each = [window_context(p) for p in parts]
+        out = {k: np.concatenate([c[k] for c in each]) for k in each[0] if all(k in c for c in each)}
+        out["record"] = session.win.record.astype(float)
+        return out
     m = session.m
     idx = session.win.starts[:, None] + np.arange(session.win.length)[None, :]
     travel = np.concatenate([[0.0], np.cumsum(0.5 * (m.drive_measured[1:] + m.drive_measured[:-1]) / m.rate)])
@@ -220,9 +227,9 @@ def window_context(session: Session) -> dict[str, np.ndarray]:
 def correlations(session: Session, base: Fitted) -> list[dict[str, float | str]]:
     """Spearman correlation of each window's error (base model) with measured quantities, strongest first."""
     ms = np.full(session.win.starts.size, np.nan)
-    ms[base.fit.windows] = session.weighted(base.ms_fit)
+    ms[base.fit.windows] = session.weighted(base.ms_fit, base.fit.windows)
     if base.ms_held:
-        ms[session.win.select(True)] = session.weighted(base.ms_held)
+        ms[base.held.windows] = session.weighted(base.ms_held, base.held.windows)
     ok = np.isfinite(ms)
     out = []
     for name, x in window_context(session).items():
@@ -272,7 +279,7 @@ class Diagnosis:
         e0 = self.base.rms(primary)
         verdict = {v.cand: v for v in self.verdicts}
         flagged = session.win.transient if session.win.transient is not None else np.zeros(session.win.starts.size, bool)
-        return {
+        out = {
             "data": session.source,
             "filled_samples": session.rec.meta.get("filled", {}),
             "start_from_data": session.law_guess,
@@ -317,9 +324,14 @@ class Diagnosis:
             "residual_correlations": self.correlations[:8],
             "windows": {"length_s": (session.win.length - 1) / session.m.rate,
                         "fit": int(session.win.select(False).size), "held_out": int(session.win.select(True).size),
-                        "flagged_transient": [float(session.m.t[session.win.starts[i]]) for i in np.flatnonzero(flagged)]},
+                        "flagged_transient": [float(t) for t in session.window_t(np.flatnonzero(flagged))]},
             "noise": {"sigma": session.m.sigma, "source": session.m.sigma_source},
         }
+        sources = getattr(session, "sources", None)
+        if sources and len(sources) > 1:  # several records (MultiSession): each its own windows, noise and floor
+            out["data"] = list(sources)
+            out["records"] = session.records_json(final, self.floors)
+        return out
 
 
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
@@ -493,7 +505,8 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
         sequence = [score(base, base, search, tuple(members), floor, session)] if members else []
     excess_ratio = (e0 - floor) / floor if floor > 0 else float("inf")
     total = (e0 - current.rms(primary)) / (e0 - floor) if e0 > floor else 0.0
-    z_total = consistency(session.weighted(base.ms_held) - session.weighted(current.ms_held)) if sequence else 0.0
+    z_total = (consistency(session.weighted(base.ms_held, base.held.windows)
+                           - session.weighted(current.ms_held, current.held.windows)) if sequence else 0.0)
     # every step passed on its own held-out evidence; the combined model must hold up as a whole too
     found = bool(sequence and excess_ratio > MIN_EXCESS and total >= MIN_STEP and z_total >= MIN_T)
     search_total = (e0 - search.rms(primary)) / (e0 - floor) if e0 > floor and members else 0.0
@@ -504,7 +517,7 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     d.rest = unexplained(session, d) if found else None
     if (not found and excess_ratio > MIN_EXCESS) or d.rest is not None:
         say("where the model fails: cycle phases, loading, ringing")
-        d.where = where_it_lives(session, d.promised)
+        d.where = where_it_lives(*session.where_view(d.promised))
     d.summary = _summary(session, d, excess_ratio)
     return d
 
@@ -513,7 +526,7 @@ def fit_error(session: Session, f: Fitted) -> float:
     """A fit's mean square on the fit windows, each output in units of its noise: which of two fits of one model is
     the better one, read off the data it was fitted to (not the held-out windows it is judged on; the window
     weights of two fits need not be the same, so not their costs)."""
-    return float(np.mean(session.weighted(f.ms_fit)))
+    return float(np.mean(session.weighted(f.ms_fit, f.fit.windows)))
 
 
 def _meaning(c: Candidate) -> str:
@@ -535,12 +548,15 @@ def unexplained(session: Session, d: Diagnosis) -> dict | None:
     if share >= WHOLE or not f.ms_held:
         return None
     ms = f.ms_held[p]
-    t = session.m.t[session.win.starts[f.held.windows]]
+    t = session.window_t(f.held.windows)
     worst = np.argsort(-ms, kind="stable")[:3]
+    sources = getattr(session, "sources", None)
+    rec = session.win.record[f.held.windows] if sources and len(sources) > 1 else None
     return {"share_left": 1.0 - share,
             "by_signal": {k: {"error": float(math.sqrt(np.mean(v))), "noise_floor": d.floors.get(k)}
                           for k, v in f.ms_held.items()},
-            "worst_windows": [{"t_s": float(t[i]), "error": float(math.sqrt(ms[i])),
+            "worst_windows": [{**({"data": sources[rec[i]]} if rec is not None else {}),
+                               "t_s": float(t[i]), "error": float(math.sqrt(ms[i])),
                                "share_of_squared_error": float(ms[i] / ms.sum())} for i in worst],
             "follows": correlations(session, f)[:3]}
 

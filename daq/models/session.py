@@ -133,12 +133,17 @@ class Session:
 
     @classmethod
     def open(cls, data: str | Path, model: Model, rig: str | None = None, **kw) -> "Session":
+        rec, cfg = cls.load(data, model, rig)
+        return cls(rec, str(data), cfg, **kw)
+
+    @staticmethod
+    def load(data: str | Path, model: Model, rig: str | None = None) -> tuple[Recording, RigConfig]:
+        """A recording for ``model`` (its rig checked) and the rig config the model is fitted with."""
         own_file = model.rig_config is not None and Path(rig or "").resolve() == Path(model.rig_config).resolve()
         if rig is not None and rig != model.rig and not own_file:  # its rig's id, or the rig file it was made from
             raise InputError(str(data), "--rig", f"the model is for {model.rig}, not {rig}")
         cfg = rig_config_for(model)
-        rec = load_data(data, model.rig, cfg)
-        return cls(rec, str(data), cfg, **kw)
+        return load_data(data, model.rig, cfg), cfg
 
     @property
     def primary(self) -> str:
@@ -408,9 +413,18 @@ class Session:
         pr.weights, pr.sample_weights = weights, sample_weights
         return Fitted(model, values, fit, held, pr, ms_held, ms_fit)
 
-    def weighted(self, ms: dict[str, np.ndarray]) -> np.ndarray:
-        """Per window: the mean-square error of all outputs, each in units of its noise."""
+    def weighted(self, ms: dict[str, np.ndarray], windows: np.ndarray) -> np.ndarray:
+        """Per window (``windows``: the session's windows ``ms`` holds, in order): the mean-square error of all
+        outputs, each in units of its noise (of its own record, in a MultiSession)."""
         return sum(v / self.m.sigma[k] ** 2 for k, v in ms.items())
+
+    def window_t(self, windows: np.ndarray) -> np.ndarray:
+        """Each window's start time [s]."""
+        return self.m.t[self.win.starts[windows]]
+
+    def where_view(self, fitted: Fitted) -> tuple[Session, Fitted]:
+        """The session and fit where_it_lives reads (a MultiSession: the record that carries most of the error)."""
+        return self, fitted
 
     @staticmethod
     def _new_keys(old: Model, new: Model) -> set[str]:
@@ -505,7 +519,7 @@ class Session:
         ms = pr.window_errors(fitted.values, allw, vel.start_values)
         # A window whose start-velocity fit ran away (seen once in 90 windows on a 600 s record) is
         # not what a perfect model shows: windows more than 5x the median rms are left out.
-        wsum = self.weighted(ms)
+        wsum = s.weighted(ms, allw)
         keep = wsum <= 25.0 * np.median(wsum)
         return {k: float(math.sqrt(np.mean(v[keep]))) for k, v in ms.items()}
 
