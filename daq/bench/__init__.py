@@ -22,6 +22,7 @@ BENCHES: dict[str, tuple[str, str, str]] = {
     "web": ("daq.bench.web", "bench_web", "format_web"),
     "rsf": ("daq.bench.rsf", "bench_rsf", "format_rsf"),
     "archive": ("daq.bench.archive", "bench_archive", "format_archive"),
+    "propose": ("daq.bench.propose", "bench_propose", "format_propose"),
 }
 
 

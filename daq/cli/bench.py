@@ -34,7 +34,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if n < 1:
             raise InputError("bench", f"--{option}", f"{n}: at least 1")
         options[option] = n
-    if args.name == "rsf":
+    if args.name in ("rsf", "propose"):
         options["progress"] = lambda msg: print(f"  {msg}", file=sys.stderr, flush=True)
     result, report = run_bench(args.name, **options)
     if args.json:

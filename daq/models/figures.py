@@ -16,7 +16,7 @@ from daq.signals import paper_spectrogram, sg  # noqa: E402
 
 from . import robust  # noqa: E402
 from .compare import OUTLIER_SIGMAS  # noqa: E402
-from .diagnose import MIN_STEP  # noqa: E402
+from .diagnose import MIN_STEP, MIN_T  # noqa: E402
 from .session import Fitted, Session  # noqa: E402
 
 
@@ -278,4 +278,48 @@ def history_figure(entries: list[dict], path: Path) -> None:
     ax.set_yscale("log")
     ax.set_title("model error across revisions (dashed: noise floor)")
     ax.legend(fontsize=8)
+    save_png(fig, path, dpi=90)
+
+
+def proposal_figure(session: Session, prop, path: Path) -> None:
+    """The proposed programme (top), each rival's noise-free prediction of the primary output under it (middle), and
+    how far each rival is from "nothing more" in units of the record's noise (bottom); beside it every programme
+    scored (separation against z, the proposal circled)."""
+    from .design import predicted  # the design imports this module's siblings; imported here, at call time
+
+    best = prop.best
+    primary = session.primary
+    sigma = session.m.sigma[primary]
+    fig = plt.figure(figsize=(13, 7.5), constrained_layout=True)
+    grid = fig.add_gridspec(3, 2, width_ratios=(2.2, 1))
+    ax_v, ax_y, ax_d = (fig.add_subplot(grid[i, 0]) for i in range(3))
+    rt, rv = best.programme.table()
+    ax_v.plot(rt, rv * 1e3, "k-")
+    ax_v.set_ylabel("drive [mm/s]")
+    ax_v.set_title(f"proposed: {best.programme.name} (z {best.z:.2f}, separation {best.separation:.1f})", fontsize=10)
+    recs = {r.label: predicted(session, r, best.programme, noise=False) for r in prop.rivals}
+    ref = recs[prop.rivals[0].label]
+    for r in prop.rivals:
+        rec = recs[r.label]
+        y = np.asarray(rec.channels[primary], dtype=float)
+        ax_y.plot(rec.t, y, lw=0.8, label=r.label + (" (generic strength)" if r.fixed else ""))
+        if r is not prop.rivals[0]:
+            ax_d.plot(rec.t, (y - np.asarray(ref.channels[primary], dtype=float)) / sigma, lw=0.8, label=r.label)
+    ax_y.set_ylabel(f"{primary} [{session.m.units[primary]}]")
+    ax_y.legend(fontsize=8)
+    ax_d.axhspan(-1, 1, color="0.9")
+    ax_d.set_ylabel(f"free run minus '{prop.rivals[0].label}' [noise sd]")
+    ax_d.set_xlabel("t [s]")
+    ax_d.legend(fontsize=8)
+    ax_s = fig.add_subplot(grid[:, 1])
+    z = np.array([s.z for s in prop.scored])
+    sep = np.array([s.separation for s in prop.scored])
+    ax_s.scatter(sep, z, s=14, c=["C2" if s.decides else "C7" for s in prop.scored])
+    ax_s.scatter([best.separation], [best.z], s=120, facecolors="none", edgecolors="C3", label="proposed")
+    ax_s.axhline(MIN_T, color="k", ls=":", lw=0.8)
+    ax_s.set_xscale("symlog")
+    ax_s.set_xlabel("separation of the rivals [noise units]")
+    ax_s.set_ylabel("consistency z (worst pair)")
+    ax_s.set_title(f"{len(prop.scored)} of {prop.family_size} programmes scored (green: decides)", fontsize=10)
+    ax_s.legend(fontsize=8)
     save_png(fig, path, dpi=90)

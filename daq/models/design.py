@@ -1,0 +1,256 @@
+"""The next experiment: the drive programme under which rival explanations of a record differ most (issue 26).
+
+Why this way (model discrimination, Box and Hill 1967; T-optimality, Atkinson and Fedorov 1975): when a record leaves
+rivals standing ("nothing more" against an effect it cannot see, or two effects that fit it equally well), the run
+that decides is the one under which the data one rival predicts are furthest from what the other can produce. Each
+rival is fitted to the record as well as it can be; for each candidate programme of the rig
+(:mod:`daq.models.programmes`), the record the rival taken as true predicts (its fitted values, the record's noise
+levels) is scored against the other rival at *its* fitted values, on the held-out windows the diagnosis would score,
+start values fitted in each window as always. Both directions, every pair: the programme's score is the worst of them
+(maximin: a proposal must decide whichever rival is true).
+
+Two numbers per pair: ``z``, the Wilcoxon consistency of the per-window difference (what diagnose requires of a
+claim, MIN_T), and ``separation``, the square root of the summed chi-square difference in noise units (how far
+apart, which ranks programmes that all decide). A programme *decides* when ``z >= MIN_T`` in every direction.
+
+The rival's parameters are held at their values on the first record, not refitted to the new one: the two records
+will be judged together, with shared parameters, so the first record pins them (what a refit on both would do, to
+first order). This is optimistic where the first record pins a parameter weakly.
+
+A rival the record cannot see (an effect whose free fit stays at its neutral value, e.g. aging at one constant
+drive speed) is taken at a generic strength (STRENGTH_START, deliberately not any simulator's hidden value), the
+other parameters refitted: the rival that explains the record as well as "nothing more" does with the effect
+present. The proposal then says which run would show it, if it is there at that strength.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from daq.errors import InputError
+from daq.io.interchange import Recording
+from daq.sim.run import simulate
+
+from .candidates import Candidate
+from .diagnose import MIN_T, consistency, z_attainable
+from .margins import MIN_EXCESS
+from .programmes import Programme, family
+from .session import Fitted, Session, _can_fork
+from .spec import STRENGTH_START, Model, form_key
+
+NOTHING = "nothing more"
+MAX_WINDOWS = 40  # held-out and fit windows of a predicted record (a third held out, as in any session)
+HALVINGS = 5  # a rival the record cannot see is tried at the generic strength and down to 1/32 of it
+SEED = 2026  # the predicted records' noise: one realisation, the same for every programme (a fair comparison)
+
+
+@dataclass
+class Rival:
+    """One explanation of the record: a model fitted to it; ``fixed``: its strength was set, not fitted."""
+
+    label: str
+    fitted: Fitted
+    fixed: str | None = None  # the strength parameter held at a generic value (the record cannot see it)
+
+    def error(self, session: Session) -> float:
+        return self.fitted.rms(session.primary)
+
+
+@dataclass
+class PairScore:
+    truth: str
+    rival: str
+    z: float
+    separation: float
+    n_held: int
+
+
+@dataclass
+class Scored:
+    programme: Programme
+    pairs: list[PairScore]
+
+    @property
+    def z(self) -> float:
+        return min(p.z for p in self.pairs)
+
+    @property
+    def separation(self) -> float:
+        return min(p.separation for p in self.pairs)
+
+    @property
+    def decides(self) -> bool:
+        return self.z >= MIN_T
+
+    def rank(self) -> tuple:
+        """Deciding first, then the widest separation, then the shorter run."""
+        return (not self.decides, -self.separation, self.programme.duration_s)
+
+
+@dataclass
+class Proposal:
+    best: Scored
+    scored: list[Scored]  # in family order
+    rivals: list[Rival]
+    family_size: int
+    seconds: float
+    budget_s: float
+
+
+def rivals_for(session: Session, model: Model, candidates: list[Candidate], say: Callable[[str], None]) -> list[Rival]:
+    """"Nothing more" (the model fitted) and the model with each candidate, fitted from it; a candidate whose
+    strength the fit leaves at neutral is held at a generic strength, the other parameters refitted."""
+    if any(e.path is not None for e in model.effects.values()):
+        raise InputError("--model", "effects", "a user effect cannot be simulated under another programme yet")
+    base = session.fit(model)
+    out = [Rival(NOTHING, base)]
+    for c in candidates:
+        m = c.apply(model, "propose")
+        say(f"fitting the rival {c.label} on {session.source}")
+        fitted = session.fit(m, warm=base)
+        full = c.strength(m)
+        fixed = None
+        if full is not None:
+            p = m.params()[full]
+            start = STRENGTH_START.get(form_key(c.name, c.form) if c.kind == "effect" else "")
+            if start is not None and abs(fitted.values[full] - p.value) < 0.5 * abs(start - p.value):
+                fitted, fixed = _standing(session, m, base, full, p.value, start, say), full
+        out.append(Rival(c.label, fitted, fixed))
+    return out
+
+
+def _standing(session: Session, m: Model, base: Fitted, full: str, neutral: float, start: float,
+              say: Callable[[str], None]) -> Fitted:
+    """The model ``m`` with its strength ``full`` held at the largest of start, start/2, start/4, ... (at most
+    HALVINGS halvings) at which, the other parameters refitted, the record cannot tell it from "nothing more" as
+    diagnose judges a claim: the per-window difference on the held-out windows is not consistent (z < MIN_T) or the
+    error is within 1 + MIN_EXCESS of it. A rival the record leaves standing. Where none is, the smallest tried
+    (the record all but rules it out already; the proposal then confirms that)."""
+    hw = session.win.select(True)
+    e0 = base.rms(session.primary)
+    for k in range(HALVINGS + 1):
+        value = neutral + (start - neutral) / 2 ** k
+        held = m.with_values({full: value})
+        held.params()[full].free = False
+        fitted = session.fit(held, warm=base)
+        z = consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw)) if hw.size else 0.0
+        e = fitted.rms(session.primary)
+        say(f"  {full} held at {value:.4g}: {e:.4g} on the record against {e0:.4g} (z {z:.2f})")
+        if z < MIN_T or e <= (1.0 + MIN_EXCESS) * e0:
+            break
+    return fitted
+
+
+def predicted(session: Session, rival: Rival, prog: Programme, noise: bool = True, seed: int = SEED) -> Recording:
+    """The record ``rival`` predicts under ``prog``: its fitted model simulated at the session's rate, the record's
+    noise level added to each output (``noise``)."""
+    b = rival.fitted.problem.builder
+    vals = {**b.base_values, **rival.fitted.values}
+    rec = simulate(b.config(vals), e=b.effect_vector(vals), ramp=prog.table(), ramp_source=prog.name,
+                   duration=prog.duration_s, rate=session.m.rate, noise=False)
+    rng = np.random.default_rng(seed)
+    for k, s in session.m.sigma.items():
+        if noise and k in rec.channels:
+            rec.channels[k] = np.asarray(rec.channels[k], dtype=float) + rng.normal(0.0, s, len(rec.channels[k]))
+    return rec
+
+
+def score_pair(session: Session, truth: Rival, rival: Rival, rec: Recording) -> PairScore:
+    """``rival`` at its values against the record ``truth`` predicts, on that record's held-out windows."""
+    s = Session(rec, "(predicted)", session.cfg, max_windows=MAX_WINDOWS, loss=session.loss,
+                window_s=(session.win.length - 1) / session.m.rate)
+    s.m.sigma = dict(session.m.sigma)  # the record's noise model, not a re-estimate
+    hw = s.win.select(True)
+    _, ms_t = s.held_out(s.problem(truth.fitted.model), truth.fitted.values)
+    _, ms_r = s.held_out(s.problem(rival.fitted.model), rival.fitted.values)
+    d = s.weighted(ms_r, hw) - s.weighted(ms_t, hw)
+    n = int(d.size)
+    chi2 = float(np.sum((s.win.length - 1) * d))
+    return PairScore(truth.label, rival.label, min(consistency(d), z_attainable(n)), math.sqrt(max(chi2, 0.0)), n)
+
+
+def score(session: Session, rivals: list[Rival], prog: Programme) -> Scored:
+    """Every ordered pair of rivals under ``prog``."""
+    pairs = []
+    for truth in rivals:
+        rec = predicted(session, truth, prog)
+        pairs += [score_pair(session, truth, other, rec) for other in rivals if other is not truth]
+    return Scored(prog, pairs)
+
+
+_POOL: dict[str, object] = {}  # what a forked scoring process needs (fork: nothing is pickled to it)
+
+
+def _score_task(i: int) -> Scored:
+    return score(_POOL["session"], _POOL["rivals"], _POOL["progs"][i])  # type: ignore[arg-type,index]
+
+
+def propose(session: Session, rivals: list[Rival], budget_s: float, max_run_s: float, v0: float,
+            say: Callable[[str], None], workers: int | None = None) -> Proposal:
+    """Score the rig's programmes in family order until the budget is spent; the best one by :meth:`Scored.rank`.
+    With cores to spare, programmes are scored in forked processes (each inherits the session and the rivals'
+    fits; a score comes back as plain data), in family order as they finish."""
+    if len(rivals) < 2:
+        raise InputError("--rival", "--rival", "a proposal needs at least one rival to 'nothing more'")
+    progs = family(session.cfg, v0, max_run_s)
+    workers = workers or (os.cpu_count() or 1)
+    t0 = time.monotonic()
+    scored: list[Scored] = []
+
+    def take(res: Scored) -> bool:
+        scored.append(res)
+        best = min(scored, key=Scored.rank)
+        say(f"[{len(scored)}/{len(progs)}] {res.programme.name}: z {res.z:.2f}, separation {res.separation:.1f}; "
+            f"best so far: {best.programme.name}")
+        if time.monotonic() - t0 > budget_s and len(scored) < len(progs):
+            say(f"budget of {budget_s:g} s spent: {len(scored)} of {len(progs)} programmes scored")
+            return False
+        return True
+
+    if workers > 1 and _can_fork():
+        _POOL.update(session=session, rivals=rivals, progs=progs)
+        try:
+            with mp.get_context("fork").Pool(min(workers, len(progs))) as pool:
+                for res in pool.imap(_score_task, range(len(progs))):
+                    if not take(res):
+                        break
+        finally:
+            _POOL.clear()
+    else:
+        for prog in progs:
+            if not take(score(session, rivals, prog)):
+                break
+    return Proposal(min(scored, key=Scored.rank), scored, rivals, len(progs), time.monotonic() - t0, budget_s)
+
+
+def drive_speed(session: Session) -> float:
+    """The record's drive speed to build the family around: its median commanded speed while moving."""
+    v = np.asarray(session.m.drive_command, dtype=float)
+    moving = v[v > 0]
+    if moving.size == 0:
+        raise InputError(session.source, "drive", "the belt never moves in this record: no speed to vary around")
+    return float(np.median(moving))
+
+
+def as_json(session: Session, p: Proposal) -> dict:
+    best = p.best
+    return {
+        "data": session.source,
+        "programme": best.programme.name, "duration_s": best.programme.duration_s,
+        "varies": list(best.programme.varies), "ramp": best.programme.toml(),
+        "decides": best.decides, "z": best.z, "separation": best.separation,
+        "pairs": [vars(x) for x in best.pairs],
+        "rivals": [{"label": r.label, "error_on_record": r.error(session), "error_unit": session.m.units[session.primary],
+                    "held_at_generic_strength": r.fixed,
+                    "values": {k: r.fitted.values[k] for k in r.fitted.model.free_names()}} for r in p.rivals],
+        "scored": [{"programme": s.programme.name, "z": s.z, "separation": s.separation, "decides": s.decides}
+                   for s in p.scored],
+        "family_size": p.family_size, "seconds": p.seconds, "budget_s": p.budget_s,
+    }
