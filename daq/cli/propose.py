@@ -15,13 +15,19 @@ from daq.io.jsonout import print_json
 
 from .output import say
 
+# the longest programme by default: twice the first record, within these (a short record's run may need longer to
+# show a slow effect: aging on the brake at one speed was decided by no 10 s run of its family, by 20 s ones)
+MIN_RUN_S, MAX_RUN_S = 20.0, 60.0
+
 
 def cmd_propose(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models import design
     from daq.models.candidates import candidates_for, parse_candidate
+    from daq.models.diagnose import diagnose
     from daq.models.figures import proposal_figure
     from daq.models.programmes import Programme, write_programme
+    from daq.models.multi_session import MultiSession
     from daq.models.session import Session
     from daq.models.spec import load_model
 
@@ -32,19 +38,34 @@ def cmd_propose(args: argparse.Namespace) -> int:
         raise InputError("--budget", "--budget", f"{args.budget:g} s: must be > 0")
     model = load_model(args.model)
     known = {c.label: c for c in candidates_for(model)}
-    rivals = []
-    for text in args.rival:
+    given = []
+    for text in args.rival or ():
         c = parse_candidate(text)
         if c.label not in known:
             raise InputError("--rival", "--rival", f"{text!r} is not a candidate of this model (one of: "
                                                    f"{', '.join(sorted(known))})")
-        rivals.append(c)
-    s = Session.open(args.data, model, args.rig)  # before the first progress line: a bad file is one line
-    print(f"propose: {args.data} against {model.describe()}; rivals: {design.NOTHING}, "
-          f"{', '.join(c.label for c in rivals)}", file=sys.stderr)
+        given.append(c)
+    data = list(args.data)
+    # before the first progress line: a bad file is one line
+    s = MultiSession.open(data, model, args.rig) if len(data) > 1 else Session.open(data[0], model, args.rig)
+    print(f"propose: {' + '.join(data)} against {model.describe()}", file=sys.stderr)
+    if given:
+        rs = design.rivals_for(s, model, given, say)
+        why = f"rivals given: {', '.join(c.label for c in given)}"
+    else:
+        say("diagnosing first: the rivals are what the diagnosis leaves standing")
+        rs, why = design.rivals_from(s, model, diagnose(s, model, progress=say, deliver=False), say)
+    say(why)
+    if not rs:
+        result = {"data": data, "programme": None, "reason": why, "decides": None}
+        out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+        if args.json:
+            print_json(result)
+        else:
+            print(f"no run to propose: {why}")
+        return 0
     v0 = design.drive_speed(s)
-    max_run = args.max_run_s or min(60.0, float(s.m.t[-1] - s.m.t[0]))
-    rs = design.rivals_for(s, model, rivals, say)
+    max_run = args.max_run_s or min(MAX_RUN_S, max(MIN_RUN_S, 2.0 * float(s.m.t[-1] - s.m.t[0])))
     for r in rs:
         say(f"{r.label}: {r.error(s):.4g} {s.m.units[s.primary]} on the record"
             + (f" ({r.fixed} held at a generic strength: the record cannot tell it from nothing)" if r.fixed else ""))
@@ -53,6 +74,7 @@ def cmd_propose(args: argparse.Namespace) -> int:
     write_programme(best, out)
     result = design.as_json(s, prop)
     result["output"] = str(out)
+    result["reason"] = why
     figure = out.with_suffix(".png")
     proposal_figure(s, prop, figure)
     result["figure"] = str(figure)
@@ -72,14 +94,17 @@ def cmd_propose(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("propose", help="the next run: the drive programme under which rival explanations of a "
                                        "record differ most (a ramp file the daemon runs)")
-    p.add_argument("data", help="recording (.h5) or interchange CSV/TDMS")
+    p.add_argument("data", nargs="+", help="recording(s) (.h5) or interchange CSV/TDMS of one rig (several: judged "
+                                           "together, one model; the family is built around the first)")
     p.add_argument("--model", required=True, help="model TOML ('nothing more' is this model, fitted)")
-    p.add_argument("--rival", action="append", required=True,
-                   help="a candidate the record leaves standing, as diagnose names it for `daq model add` "
-                        "(EFFECT, EFFECT:FORM or mechanics.NAME); repeat for several")
+    p.add_argument("--rival", action="append",
+                   help="a candidate to test against 'nothing more', as diagnose names it for `daq model add` "
+                        "(EFFECT or EFFECT:FORM); repeat for several. Default: diagnose first and take what it leaves "
+                        "standing (a tie, or the effects the record cannot see)")
     p.add_argument("--rig", help="rig of a CSV/TDMS file (default: the model's)")
     p.add_argument("--budget", type=float, default=120.0, help="seconds for scoring programmes (default 120)")
-    p.add_argument("--max-run-s", type=float, help="longest programme [s] (default: the record's length, <= 60 s)")
+    p.add_argument("--max-run-s", type=float, help=f"longest programme [s] (default: twice the first record, within "
+                                                   f"[{MIN_RUN_S:g}, {MAX_RUN_S:g}] s)")
     p.add_argument("-o", "--output", required=True, help="NEXT.toml: the proposed ramp (with NEXT.png, NEXT.json)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_propose)

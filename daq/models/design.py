@@ -38,8 +38,8 @@ from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.sim.run import simulate
 
-from .candidates import Candidate
-from .diagnose import MIN_T, consistency, z_attainable
+from .candidates import Candidate, candidates_for
+from .diagnose import MIN_T, Diagnosis, consistency, z_attainable
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
 from .session import Fitted, Session, _can_fork
@@ -47,6 +47,7 @@ from .spec import STRENGTH_START, Model, form_key
 
 NOTHING = "nothing more"
 MAX_WINDOWS = 40  # held-out and fit windows of a predicted record (a third held out, as in any session)
+MAX_RIVALS = 3  # besides "nothing more": each costs a fit on the record and a simulation per programme
 HALVINGS = 5  # a rival the record cannot see is tried at the generic strength and down to 1/32 of it
 SEED = 2026  # the predicted records' noise: one realisation, the same for every programme (a fair comparison)
 
@@ -87,11 +88,19 @@ class Scored:
 
     @property
     def decides(self) -> bool:
+        """Every pair decided: whichever rival is true, the run tells it from the others."""
         return self.z >= MIN_T
 
+    def decided(self) -> list[str]:
+        """The rivals each of whose pairs (both directions) this run decides."""
+        names = dict.fromkeys(n for p in self.pairs for n in (p.truth, p.rival))
+        return [n for n in names if n != NOTHING and all(p.z >= MIN_T for p in self.pairs if n in (p.truth, p.rival))]
+
     def rank(self) -> tuple:
-        """Deciding first, then the widest separation, then the shorter run."""
-        return (not self.decides, -self.separation, self.programme.duration_s)
+        """The most rivals decided, all of them first, then the widest separation, then the shorter run. Why not
+        the worst pair alone (maximin): against "nothing more" several unseen effects stand, and one that no run of
+        the family reveals at its generic strength must not hide the run that reveals the others."""
+        return (-len(self.decided()), not self.decides, -self.separation, self.programme.duration_s)
 
 
 @dataclass
@@ -104,12 +113,13 @@ class Proposal:
     budget_s: float
 
 
-def rivals_for(session: Session, model: Model, candidates: list[Candidate], say: Callable[[str], None]) -> list[Rival]:
+def rivals_for(session: Session, model: Model, candidates: list[Candidate], say: Callable[[str], None],
+               base: Fitted | None = None) -> list[Rival]:
     """"Nothing more" (the model fitted) and the model with each candidate, fitted from it; a candidate whose
     strength the fit leaves at neutral is held at a generic strength, the other parameters refitted."""
     if any(e.path is not None for e in model.effects.values()):
         raise InputError("--model", "effects", "a user effect cannot be simulated under another programme yet")
-    base = session.fit(model)
+    base = base or session.fit(model)
     out = [Rival(NOTHING, base)]
     for c in candidates:
         m = c.apply(model, "propose")
@@ -124,6 +134,61 @@ def rivals_for(session: Session, model: Model, candidates: list[Candidate], say:
                 fitted, fixed = _standing(session, m, base, full, p.value, start, say), full
         out.append(Rival(c.label, fitted, fixed))
     return out
+
+
+def rivals_from(session: Session, model: Model, d: Diagnosis, say: Callable[[str], None]) -> tuple[list[Rival], str]:
+    """The rival explanations a diagnosis leaves standing, and why (a sentence). Undecided between X and Y: the
+    diagnosed model with X and the same with Y in its place. Nothing named: "nothing more" against the first
+    catalog effects the record cannot see at a generic strength (:func:`_unseen`). Named and decided: no rivals
+    (nothing to propose)."""
+    by_label = {c.label: c for c in candidates_for(model)}
+    members = [c for sc in d.sequence for c in sc.cands]
+    tied = next((v for v in d.verdicts if v.ties), None) if d.found else None
+    if tied is not None:
+        rest = [c for c in members if c != tied.cand]
+        out = []
+        for c in [tied.cand] + [by_label[m.rival] for m in tied.ties if m.rival in by_label][:MAX_RIVALS - 1]:
+            say(f"fitting the rival {c.label} (with {', '.join(x.label for x in rest) or 'nothing else'})")
+            out.append(Rival(c.label, session.fit(_extend(model, rest + [c]))))
+        return out, f"undecided between {' and '.join(r.label for r in out)}"
+    if d.found and members:
+        return [], f"decided: {', '.join(c.label for c in members)}; nothing to propose"
+    rivals = _unseen(session, model, d.base, say)
+    if len(rivals) < 2:
+        return [], "nothing named, and every candidate at a generic strength is ruled out by the record: nothing to propose"
+    return rivals, f"nothing named; the record cannot see {', '.join(r.label for r in rivals[1:])} at generic strengths"
+
+
+def _unseen(session: Session, model: Model, base: Fitted, say: Callable[[str], None]) -> list[Rival]:
+    """"Nothing more" and the catalog effects the record cannot see: each held at its generic strength
+    (STRENGTH_START), the other parameters refitted, and kept when its per-window difference from "nothing more"
+    on the held-out windows is not consistent (z < MIN_T: the record does not rule it out at that strength). An
+    effect the record rules out there is absent as far as any run can tell at that strength; one it cannot is what
+    another run must look for. At most MAX_RIVALS, the least visible first."""
+    hw = session.win.select(True)
+    standing: list[tuple[float, Rival]] = []
+    for c in candidates_for(model, mechanics=False):
+        start = STRENGTH_START.get(form_key(c.name, c.form))
+        m = c.apply(model, "propose")
+        full = c.strength(m)
+        if start is None or full is None:
+            continue
+        held = m.with_values({full: start})
+        held.params()[full].free = False
+        fitted = session.fit(held, warm=base)
+        z = consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw)) if hw.size else 0.0
+        say(f"{c.label} at {start:g}: {fitted.rms(session.primary):.4g} on the record against "
+            f"{base.rms(session.primary):.4g} (z {z:.2f}: {'cannot see it' if z < MIN_T else 'rules it out'})")
+        if z < MIN_T:
+            standing.append((z, Rival(c.label, fitted, full)))
+    standing.sort(key=lambda zr: zr[0])
+    return [Rival(NOTHING, base)] + [r for _, r in standing[:MAX_RIVALS]]
+
+
+def _extend(model: Model, cands: list[Candidate]) -> Model:
+    for c in cands:
+        model = c.apply(model, "propose")
+    return model
 
 
 def _standing(session: Session, m: Model, base: Fitted, full: str, neutral: float, start: float,
@@ -177,11 +242,15 @@ def score_pair(session: Session, truth: Rival, rival: Rival, rec: Recording) -> 
 
 
 def score(session: Session, rivals: list[Rival], prog: Programme) -> Scored:
-    """Every ordered pair of rivals under ``prog``."""
+    """The ordered pairs of rivals under ``prog``: every pair, except that against "nothing more" the other rivals
+    are only paired with it (the question there is whether anything is present, not which of the unseen)."""
     pairs = []
     for truth in rivals:
-        rec = predicted(session, truth, prog)
-        pairs += [score_pair(session, truth, other, rec) for other in rivals if other is not truth]
+        others = [o for o in rivals if o is not truth and NOTHING in (truth.label, o.label)
+                  or o is not truth and rivals[0].label != NOTHING]
+        if others:
+            rec = predicted(session, truth, prog)
+            pairs += [score_pair(session, truth, other, rec) for other in others]
     return Scored(prog, pairs)
 
 
@@ -245,12 +314,13 @@ def as_json(session: Session, p: Proposal) -> dict:
         "data": session.source,
         "programme": best.programme.name, "duration_s": best.programme.duration_s,
         "varies": list(best.programme.varies), "ramp": best.programme.toml(),
-        "decides": best.decides, "z": best.z, "separation": best.separation,
+        "decides": best.decides, "decided_rivals": best.decided(), "z": best.z, "separation": best.separation,
         "pairs": [vars(x) for x in best.pairs],
         "rivals": [{"label": r.label, "error_on_record": r.error(session), "error_unit": session.m.units[session.primary],
                     "held_at_generic_strength": r.fixed,
                     "values": {k: r.fitted.values[k] for k in r.fitted.model.free_names()}} for r in p.rivals],
-        "scored": [{"programme": s.programme.name, "z": s.z, "separation": s.separation, "decides": s.decides}
+        "scored": [{"programme": s.programme.name, "z": s.z, "separation": s.separation, "decides": s.decides,
+                    "decided_rivals": s.decided()}
                    for s in p.scored],
         "family_size": p.family_size, "seconds": p.seconds, "budget_s": p.budget_s,
     }

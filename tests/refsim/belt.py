@@ -100,12 +100,13 @@ def params_from_config(cfg: dict) -> BeltParams:
                       tau_thermal=ct["tau_thermal_s"])
 
 
-def as_step_drive(drive, cfg: dict) -> fx.StepDrive:
-    """The belt's programme: a StepDrive, or a constant fx.Drive (the config's default) as one segment."""
+def as_step_drive(drive, cfg: dict) -> fx.StepDrive | fx.TableDrive:
+    """The belt's programme: a StepDrive or a TableDrive (both give the command's slope), or a constant fx.Drive (the
+    config's default) as one segment."""
     a_max = float(cfg["drive"]["max_accel_m_per_s2"])
     if drive is None:
         return fx.StepDrive([(float(cfg["drive"]["V0_m_per_s"]), math.inf)], a_max)
-    if isinstance(drive, fx.StepDrive):
+    if isinstance(drive, (fx.StepDrive, fx.TableDrive)):
         return drive
     if isinstance(drive, fx.Drive) and (drive.kind == "constant" or not drive.Tmax) and not drive.lead_in:
         return fx.StepDrive([(drive.V0, math.inf)], a_max)

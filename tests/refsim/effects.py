@@ -68,6 +68,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[2]
 RIG_DIR = ROOT / "rig_configs"
 KELVIN = 273.15
@@ -237,6 +239,46 @@ class StepDrive:
     def describe(self) -> dict:
         return {"kind": self.kind, "segments_m_per_s_s": [[v, d] for v, d in self.segments],
                 "a_max_m_per_s2": self.a_max}
+
+
+@dataclass
+class TableDrive:
+    """Any programme as a piecewise-linear table of (t [s], speed [m/s]) points, held at its last speed after its end:
+    what a ramp file becomes (its segments evaluated by the caller; refsim reads no daq file format). Why: the next
+    experiment ``daq propose`` writes is run here as the rig would run it, with whatever effect is hidden."""
+
+    t: list[float]
+    v: list[float]
+    kind: str = "table"
+
+    def __post_init__(self) -> None:
+        self._t = np.asarray(self.t, dtype=float)
+        self._v = np.asarray(self.v, dtype=float)
+        if self._t.size < 2 or self._t.size != self._v.size or np.any(np.diff(self._t) < 0) or self._t[0] != 0.0:
+            raise SpecError("table drive: need >= 2 points, the same number of times and speeds, t from 0 ascending")
+        if not (np.all(np.isfinite(self._v)) and np.all(self._v >= 0.0)):
+            raise SpecError("table drive: speeds must be finite and >= 0")
+
+    @property
+    def V0(self) -> float:
+        return float(self._v[0])
+
+    def command(self, t: float) -> float:
+        return float(np.interp(t, self._t, self._v))
+
+    def slope(self, t: float) -> float:
+        """d(command)/dt on the piece that contains t (at a kink: the piece that starts there)."""
+        i = int(np.searchsorted(self._t, t, side="right")) - 1
+        if i < 0 or i >= self._t.size - 1 or self._t[i + 1] == self._t[i]:
+            return 0.0
+        return float((self._v[i + 1] - self._v[i]) / (self._t[i + 1] - self._t[i]))
+
+    def kinks(self, t_end: float) -> list[float]:
+        return sorted({float(k) for k in self._t if 0.0 < k < t_end})
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "points": int(self._t.size), "t_end_s": float(self._t[-1]),
+                "v_min_m_per_s": float(self._v.min()), "v_max_m_per_s": float(self._v.max())}
 
 
 # ---------------------------------------------------------------------------

@@ -41,7 +41,7 @@ RIGS = {"brake-2dof": brake.BrakeRig, "drum-pendulum": drum.DrumRig, "belt-ndof"
 
 def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, V0: float | None = None,
              Tmax: float | None = None, duration: float | None = None, lead_in: bool = False,
-             steps: str | list[tuple[float, float]] | None = None, seed: int = 0,
+             steps: str | list[tuple[float, float]] | None = None, table: tuple | None = None, seed: int = 0,
              noise: bool = True, jitter_s: float = 0.0, spike_prob: float = 0.0, spike_sigma: float = 30.0,
              burst_prob: float = 0.0,
              rtol: float = 1e-7, method: str = "RK45", cfg: dict | None = None) -> dict:
@@ -49,7 +49,8 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
 
     ``steps`` (belt-ndof only): a velocity-stepping programme, ``"V1:T1,V2:T2,..."`` or [(V1, T1), ...] [m/s, s],
     ramps at the config's max_accel_m_per_s2. ``cfg`` may be a user's rig file loaded by effects.load_config
-    (belt-ndof with n_masses = 2 or 3)."""
+    (belt-ndof with n_masses = 2 or 3). ``table`` (any rig): a programme as (t, speed) points, e.g. a ramp file's table
+    (effects.TableDrive); the record lasts as long as it unless ``duration`` says otherwise."""
     if rig not in RIGS:
         raise fx.SpecError(f"rig {rig!r}: unknown (known: {', '.join(RIGS)})")
     cfg = cfg if cfg is not None else fx.load_config(rig)
@@ -58,7 +59,12 @@ def generate(rig: str = "brake-2dof", effects=(), *, rate: float | None = None, 
         raise fx.SpecError(f"--V0 {V0}: must be in (0, {cfg['drive']['max_speed_m_per_s']}] m/s")
     if Tmax is not None and not Tmax > 0:
         raise fx.SpecError(f"--Tmax {Tmax}: must be > 0")
-    if steps is not None:
+    if table is not None:
+        drive = fx.TableDrive(list(table[0]), list(table[1]))
+        if drive.describe()["v_max_m_per_s"] > cfg["drive"]["max_speed_m_per_s"]:
+            raise fx.SpecError(f"table: speed above the rig's {cfg['drive']['max_speed_m_per_s']} m/s")
+        duration = duration if duration is not None else float(table[0][-1])
+    elif steps is not None:
         if rig != "belt-ndof":
             raise fx.SpecError(f"--steps: only for belt-ndof (not {rig})")
         a_max = float(cfg["drive"]["max_accel_m_per_s2"])
