@@ -39,7 +39,7 @@ from daq.io.interchange import Recording
 from daq.sim.run import simulate
 
 from .candidates import Candidate, candidates_for
-from .diagnose import MIN_T, Diagnosis, consistency, z_attainable
+from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
 from .session import Fitted, Session, _can_fork
@@ -176,7 +176,8 @@ def _unseen(session: Session, model: Model, base: Fitted, say: Callable[[str], N
         held = m.with_values({full: start})
         held.params()[full].free = False
         fitted = session.fit(held, warm=base)
-        z = consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw)) if hw.size else 0.0
+        z = (consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw), records_of(session, hw))
+             if hw.size else 0.0)
         say(f"{c.label} at {start:g}: {fitted.rms(session.primary):.4g} on the record against "
             f"{base.rms(session.primary):.4g} (z {z:.2f}: {'cannot see it' if z < MIN_T else 'rules it out'})")
         if z < MIN_T:
@@ -205,7 +206,8 @@ def _standing(session: Session, m: Model, base: Fitted, full: str, neutral: floa
         held = m.with_values({full: value})
         held.params()[full].free = False
         fitted = session.fit(held, warm=base)
-        z = consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw)) if hw.size else 0.0
+        z = (consistency(session.weighted(fitted.ms_held, hw) - session.weighted(base.ms_held, hw), records_of(session, hw))
+             if hw.size else 0.0)
         e = fitted.rms(session.primary)
         say(f"  {full} held at {value:.4g}: {e:.4g} on the record against {e0:.4g} (z {z:.2f})")
         if z < MIN_T or e <= (1.0 + MIN_EXCESS) * e0:

@@ -27,7 +27,9 @@ from .stacked import StackedProblem, StackedWindows
 MAX_WINDOWS = 90  # in all: each of n records cuts max(MIN_RECORD_WINDOWS, MAX_WINDOWS // n)
 MIN_RECORD_WINDOWS = 30
 WINDOW_SPREAD = 3.0  # the common window is the slowest record's cycle, at most this many times the fastest's
-RATE_TOLERANCE = 1e-6  # records whose (averaged) rates differ by more than this share are not windowed alike
+# records whose (averaged) rates differ by more than this share are not windowed alike; a recording's rate is read
+# from its host timestamps (two daemon runs of one rig: 1000 and 1000.01 Hz), and windows are cut in samples
+RATE_TOLERANCE = 1e-3
 RECORD_KEY = "#"  # per-record floors ride in the floor dict as "output#r" (it crosses a process boundary)
 
 

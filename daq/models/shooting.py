@@ -219,7 +219,10 @@ def _parameter_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray, ga: np.ndarray,
     if not ga.size:
         return 0.0
     nv = C.shape[1]
-    Ci = np.linalg.inv(C + 1e-12 * np.eye(nv)[None])
+    try:
+        Ci = np.linalg.inv(C + 1e-12 * np.eye(nv)[None])
+    except np.linalg.LinAlgError:  # a window whose start values the data do not fix (seen: a constant-speed record
+        Ci = np.linalg.pinv(C)  # with a strength held fixed, daq demo --closed-loop): the pseudo-inverse profiles it
     BCi = np.einsum("wij,wjk->wik", B, Ci)
     S = A - np.einsum("wij,wkj->ik", BCi, B)
     rhs = ga - np.einsum("wij,wj->i", BCi, gc)
