@@ -83,3 +83,24 @@ def test_null_nothing_hidden_the_proposed_run_still_names_nothing(tmp_path, caps
     assert [r["data"] for r in d["records"]] == [str(first), str(tmp_path / "run-2.csv")]
     for r in d["records"]:
         assert r["error"] <= 1.2 * r["noise_floor"], r
+
+
+@pytest.mark.slow
+def test_a_tie_on_a_short_record_falls_to_the_truth(tmp_path, capsys):
+    """Case 2 of issue 26: 4 s of the brake's seed ramp with the reference rig's spring k1 2 % stiff. The record is
+    too short to claim anything: a free k1, a free mass and accel-sign (body) each explain nearly all of the excess.
+    The proposal must be predicted to decide between all three; run on the reference rig, both records together name
+    k1, the truth, over its nearest rival, and the error falls to the floor. One proposed run."""
+    model = tmp_path / "m.toml"
+    save_model(seed_model("brake-2dof"), model)
+    hidden = ["stiffness:k1=0.02"]
+    first = refsim_record(tmp_path / "run-1.csv", ramp_table(seed_ramp(0.17, 45.0, 4.0)), hidden, seed=5)
+    runs, d, props = close_loop(tmp_path, capsys, first, model, hidden, most=1)
+    prop = props[0]
+    print(f"tie: {runs} proposed run(s) against a protocol of {prop['family_size']}; proposal {prop['programme']} "
+          f"(z {prop['z']:.2f}); {prop['reason']}; then named {d['named']}")
+    assert "cannot decide" in prop["reason"] and {r["label"] for r in prop["rivals"]} >= {"mechanics.k1_N_per_m",
+                                                                                          "mechanics.m_kg"}
+    assert prop["decides"] and "mechanics.k1_N_per_m" in prop["decided_rivals"]
+    assert runs == 1 and d["named"] == ["mechanics.k1_N_per_m"] and d["undecided"] == []
+    assert d["final_reduction"] > 0.9

@@ -47,6 +47,7 @@ from .spec import STRENGTH_START, Model, form_key
 
 NOTHING = "nothing more"
 MAX_WINDOWS = 40  # held-out and fit windows of a predicted record (a third held out, as in any session)
+EXPLAINS = 0.5  # nothing named, yet candidates that each remove this share of the excess: a tie the record cannot decide
 MAX_RIVALS = 3  # besides "nothing more": each costs a fit on the record and a simulation per programme
 HALVINGS = 5  # a rival the record cannot see is tried at the generic strength and down to 1/32 of it
 SEED = 2026  # the predicted records' noise: one realisation, the same for every programme (a fair comparison)
@@ -138,8 +139,9 @@ def rivals_for(session: Session, model: Model, candidates: list[Candidate], say:
 
 def rivals_from(session: Session, model: Model, d: Diagnosis, say: Callable[[str], None]) -> tuple[list[Rival], str]:
     """The rival explanations a diagnosis leaves standing, and why (a sentence). Undecided between X and Y: the
-    diagnosed model with X and the same with Y in its place. Nothing named: "nothing more" against the first
-    catalog effects the record cannot see at a generic strength (:func:`_unseen`). Named and decided: no rivals
+    diagnosed model with X and the same with Y in its place. Nothing named with an excess that candidates explain
+    (each at least EXPLAINS of it: a record too short to claim any): those candidates. Nothing named otherwise: "nothing
+    more" against the catalog effects the record cannot see at a generic strength (:func:`_unseen`). Named and decided: no rivals
     (nothing to propose)."""
     by_label = {c.label: c for c in candidates_for(model)}
     members = [c for sc in d.sequence for c in sc.cands]
@@ -153,6 +155,12 @@ def rivals_from(session: Session, model: Model, d: Diagnosis, say: Callable[[str
         return out, f"undecided between {' and '.join(r.label for r in out)}"
     if d.found and members:
         return [], f"decided: {', '.join(c.label for c in members)}; nothing to propose"
+    explains = [sc for sc in d.candidates if sc.fitted is not None and sc.reduction >= EXPLAINS][:MAX_RIVALS]
+    if explains and d.base.rms(session.primary) > (1.0 + MIN_EXCESS) * d.floor:
+        rivals = ([Rival(NOTHING, d.base)] if len(explains) == 1 else []) + [Rival(sc.label, sc.fitted) for sc in explains]
+        return rivals, (f"nothing named for an excess of {d.base.rms(session.primary) / d.floor:.1f} x the floor, which "
+                        + ", ".join(f"{sc.label} ({sc.reduction:.0%})" for sc in explains)
+                        + " each explain: the record cannot decide")
     rivals = _unseen(session, model, d.base, say)
     if len(rivals) < 2:
         return [], "nothing named, and every candidate at a generic strength is ruled out by the record: nothing to propose"
