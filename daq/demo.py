@@ -98,9 +98,9 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
     for rnd in range(1, MAX_ROUNDS + 1):
         tag = "seed" if rnd == 1 else "+".join(list(model.effects)[3:] + [k.split(".")[-1] for k in model.mechanics if model.mechanics[k].free])
         diag = diagnose(session, model, progress=lambda m: _line("    " + m))
-        res = compare(session, diag.base, diag.floors)
+        res, drawn = compare(session, diag.base, diag.floors)
         folder = out / f"{rnd}-{tag}"
-        _report(session, diag.base, res, folder)
+        _report(session, diag.base, res, drawn, folder)
         diagnose_figure(session, diag, folder / "diagnose.png")
         (folder / "diagnose.json").write_text(dumps_json(diag.as_json(session)))
         save_model(diag.base.model, folder / "model-fitted.toml")
@@ -133,13 +133,12 @@ def _entry(res: dict) -> dict:
     return {k: res[k] for k in ("data", "model", "model_digest", "error", "error_unit", "noise_floor", "error_all_windows")}
 
 
-def _report(session, fitted, res: dict, folder: Path) -> None:
+def _report(session, fitted, res: dict, drawn, folder: Path) -> None:
 
     folder.mkdir(exist_ok=True)
     compare_figure(session, fitted, res, folder / "compare.png")
-    spectrogram_figure(session, res, folder / "spectrogram.png")
-    clean = {k: v for k, v in res.items() if k != "_plot"}
-    (folder / "compare.json").write_text(dumps_json(clean))
+    spectrogram_figure(session, drawn, folder / "spectrogram.png")
+    (folder / "compare.json").write_text(dumps_json(res))
 
 
 # ----------------------------------------------------------------------------- the next experiment, closed on the rig

@@ -27,6 +27,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 RUN_FIRST = (
     # computations
     "test_rsf.py",  # 137 s: two of the user's paths, a minute each
+    "test_propose_loop.py",  # 90 s: two experiment loops through the CLI on the reference rig
     "test_recovery.py",  # 74 s
     "test_diagnose.py",  # 74 s
     "test_real_slider.py",  # 46 s
@@ -35,7 +36,10 @@ RUN_FIRST = (
     "test_belt_model.py",  # 27 s
     "test_paper000.py",  # 22 s
     "test_archive.py",  # 50 s: Dask clusters
+    "test_diagnose_multi.py",  # 25 s
+    "test_propose.py",  # 16 s
     # in real time
+    "test_demo_loop.py",  # 75 s: two runs through the daemon, diagnoses, a proposal
     "test_campaign.py",  # 38 s
     "test_daemon_e2e.py",  # 37 s
     "test_soak.py",  # 46 s: a half-minute soak

@@ -175,9 +175,7 @@ def fit_json(session: Session, fitted: Fitted) -> dict[str, Any]:
 
 def _compare(s: Session, model: Model) -> dict[str, Any]:
     f = s.fit(model)
-    out = compare(s, f, s.noise_floor(f))
-    out.pop("_plot")  # the figures' arrays: not a result to keep
-    return out
+    return compare(s, f, s.noise_floor(f))[0]  # the JSON; the figures' arrays are not a result to keep
 
 
 ANALYSES: dict[str, Callable[[Session, Model], dict[str, Any]]] = {

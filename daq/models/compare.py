@@ -18,6 +18,7 @@ Decision record: docs/decisions/0009-held-out-scoring-and-noise-floor.md.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import medfilt, welch
@@ -103,8 +104,23 @@ def spectral_line(t: np.ndarray, x: np.ndarray, fmin: float = 0.5) -> tuple[np.n
     return tt, f[ok][np.argmax(pxx[ok], axis=0)]
 
 
-def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
-    """The SPEC's compare JSON: error and noise floor of the primary signal, and the breakdowns."""
+@dataclass
+class Drawn:
+    """The arrays compare's figures draw, kept out of its JSON: the scored samples and their residuals, the free
+    run (sample indices, predictions, states, aux) and the cycles of record and model."""
+
+    idx: np.ndarray
+    res: dict[str, np.ndarray]
+    fidx: np.ndarray
+    pred: dict[str, np.ndarray]
+    states: np.ndarray
+    aux: np.ndarray
+    cycles: tuple[dict, dict]
+
+
+def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> tuple[dict, Drawn]:
+    """The SPEC's compare JSON (error and noise floor of the primary signal, and the breakdowns), and the arrays
+    its figures draw."""
     m = session.m
     primary = session.primary
     idx, res, capped = residual_samples(session, fitted)
@@ -157,9 +173,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> dict:
         out["spectral_line"] = {"t": ts.tolist(), "measured_Hz": fm.tolist(), "model_Hz": fs.tolist()}
     except ValueError:
         out["spectral_line"] = None
-    out["_plot"] = {"idx": idx, "res": res, "fidx": fidx, "pred": pred, "states": states, "aux": aux,
-                    "cycles": (cyc_rec, cyc_model)}
-    return out
+    return out, Drawn(idx, res, fidx, pred, states, aux, (cyc_rec, cyc_model))
 
 
 def loading(record: dict[str, np.ndarray], model: dict[str, np.ndarray], drive_speed: float) -> dict:

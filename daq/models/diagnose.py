@@ -82,6 +82,7 @@ class Scored:
     fitted: Fitted | None = None
     error_neutral: float = float("nan")  # held-out error of the model without it at its fit's other values (own_share)
     fit_only: bool = False  # own_share failed: what it gained, the model without it gains at the same values
+    own_z: float = float("nan")  # own_share's consistency z (the candidate against the model without it)
 
     @property
     def effect(self) -> str:
@@ -200,7 +201,9 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
     s.error_neutral = neutral.rms(session.primary)
     if not math.isfinite(s.error_neutral):  # without it the model cannot even run at those values: it is needed
         return True  # (seen: rate-and-state's slip law at the noise floor, the base model at its values a NaN)
-    s.fit_only = not passes(score(base, neutral, s.fitted, s.cands, floor, session))
+    against = score(base, neutral, s.fitted, s.cands, floor, session)
+    s.own_z = against.t_stat
+    s.fit_only = not passes(against)
     return not s.fit_only
 
 
@@ -644,7 +647,10 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
     best = d.candidates[0] if d.candidates else None
     above = f"{excess_ratio:.0%} above" if excess_ratio < 1.0 else f"{1.0 + excess_ratio:.1f}x"
     why = ""
-    if best is not None and best.fit_only:
+    if best is not None and best.fit_only and best.own_z < MIN_T and best.error_neutral > best.error:
+        why = (f"; against the model without it at that fit's other values ({best.error_neutral:.3g} {unit}) its gain "
+               f"is not consistent over the held-out windows (z {best.own_z:.2f} < {MIN_T})")
+    elif best is not None and best.fit_only:
         why = (f"; the model without it, at that fit's other values, does as well ({best.error_neutral:.3g} {unit}): "
                f"its own fit can still improve")
     n_held = int(session.win.select(True).size)

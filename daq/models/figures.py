@@ -15,7 +15,7 @@ from daq.physics.contact import AUX  # noqa: E402
 from daq.signals import paper_spectrogram, sg  # noqa: E402
 
 from . import robust  # noqa: E402
-from .compare import OUTLIER_SIGMAS  # noqa: E402
+from .compare import OUTLIER_SIGMAS, Drawn  # noqa: E402
 from .diagnose import MIN_STEP, MIN_T  # noqa: E402
 from .session import Fitted, Session  # noqa: E402
 
@@ -137,13 +137,12 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     save_png(fig, path, dpi=90)
 
 
-def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
+def spectrogram_figure(session: Session, drawn: Drawn, path: Path) -> None:
     m = session.m
     primary = session.primary
-    p = result["_plot"]
-    tt = m.t[p["fidx"]]
+    tt = m.t[drawn.fidx]
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.5), constrained_layout=True, sharey=True)
-    for ax, x, label in ((axes[0], m.outputs[primary][p["fidx"]], "measured"), (axes[1], p["pred"][primary], "model")):
+    for ax, x, label in ((axes[0], m.outputs[primary][drawn.fidx], "measured"), (axes[1], drawn.pred[primary], "model")):
         f, t, pxx = paper_spectrogram(tt, x - x.mean())
         ax.pcolormesh(t, f, 10 * np.log10(pxx + 1e-30), shading="auto")
         ax.set_title(f"{primary}: {label}")
@@ -152,9 +151,9 @@ def spectrogram_figure(session: Session, result: dict, path: Path) -> None:
     save_png(fig, path, dpi=90)
 
 
-def cycles_figure(session: Session, result: dict, path: Path) -> None:
+def cycles_figure(session: Session, result: dict, drawn: Drawn, path: Path) -> None:
     """The cycles' distributions, record against the model's free run (compare's "cycles")."""
-    rec, mod = result["_plot"]["cycles"]
+    rec, mod = drawn.cycles
     unit = result["cycles"]["unit"]
     drive = result["cycles"]["loading"]["drive_speed"]
     if drive > 0.0:  # the loading rates over the drive's speed: 1 where a stuck slider is loaded, less where it creeps
@@ -308,7 +307,8 @@ def proposal_figure(session: Session, prop, path: Path) -> None:
     ax_y.set_ylabel(f"{primary} [{session.m.units[primary]}]")
     ax_y.legend(fontsize=8)
     ax_d.axhspan(-1, 1, color="0.9")
-    ax_d.set_ylabel(f"free run minus '{prop.rivals[0].label}' [noise sd]")
+    ax_d.set_ylabel("difference [noise sd]")
+    ax_d.set_title(f"each rival's free run minus that of '{prop.rivals[0].label}'", fontsize=9)
     ax_d.set_xlabel("t [s]")
     ax_d.legend(fontsize=8)
     ax_s = fig.add_subplot(grid[:, 1])
