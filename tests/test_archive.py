@@ -194,9 +194,17 @@ def test_dask_scheduler_and_two_workers_one_killed(suite_data, tcp_cluster):
 
 
 @pytest.mark.slow
-def test_local_cluster_one_worker_killed(suite_data):
+def test_local_cluster_one_worker_killed(suite_data, monkeypatch):
+    """... and the job leaves the caller's environment as it found it: a LocalCluster's nannies set their workers'
+    variables in this process's os.environ (MALLOC_TRIM_THRESHOLD_, one BLAS thread; again when one restarts a
+    killed worker) and Dask never puts them back."""
     tmp, data, models, serial = suite_data
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a caller's own value, kept
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)  # and one it does not have, not added
+    mine = lambda: {k: v for k, v in os.environ.items() if k != "__DASK_PARENT_PID"}  # noqa: E731 - (Dask's
+    before = mine()  # marker for its children's process titles: it changes nothing a process does)
     run_local_case(tmp, data, models, verdicts(serial))
+    assert mine() == before
 
 
 @pytest.mark.slow

@@ -296,9 +296,10 @@ libc.free(block)
 stop.set()
 """
     mapped = {}
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}  # glibc's default: no tunables set
     for how in ("page", "glibc's default"):
         r = subprocess.run([sys.executable, "-c", code, how], cwd=ROOT, capture_output=True, text=True, timeout=120,
-                           check=False)
+                           check=False, env=clean)
         assert r.returncode == 0, r.stderr[-2000:]
         mapped[how] = int(r.stdout.strip())
     assert mapped == {"page": 1, "glibc's default": 0}, mapped

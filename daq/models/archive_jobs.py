@@ -309,6 +309,24 @@ def _close(client: Client | None, cluster: LocalCluster | None) -> None:
         client.close()
     if cluster is not None:
         cluster.close()
+        _put_back(_CALLERS_ENVIRON)  # a nanny that restarted a lost worker set its variables here once more
+
+
+# What a LocalCluster's nannies do to this process: each sets its workers' variables (WORKER_ENV, PYTHONHASHSEED) in
+# os.environ before it spawns a worker, and never puts them back (distributed/nanny.py, WorkerProcess.start). A
+# job run in a caller's process (a notebook, the test suite) then left MALLOC_TRIM_THRESHOLD_ and one BLAS thread to
+# every process started after it (seen: the suite's check of glibc's default allocator failed once, in the xdist
+# worker that had run the archive's tests first). The caller's values are kept here and put back.
+_ENV_KEYS = (*WORKER_ENV, "PYTHONHASHSEED")
+_CALLERS_ENVIRON: dict[str, str | None] = {}
+
+
+def _put_back(saved: dict[str, str | None]) -> None:
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
 
 
 def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalCluster | None, str]:
@@ -321,9 +339,14 @@ def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalC
             raise InputError("--scheduler", scheduler, f"cannot reach a Dask scheduler there ({type(exc).__name__}: "
                                                        f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
     n = workers or os.cpu_count() or 1
-    with dask.config.set(WORKER_CONFIG):  # the nannies hand this configuration to the worker processes they start
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+    _CALLERS_ENVIRON.clear()
+    _CALLERS_ENVIRON.update({k: os.environ.get(k) for k in _ENV_KEYS})
+    try:
+        with dask.config.set(WORKER_CONFIG):  # the nannies hand this configuration to the worker processes they start
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+    finally:
+        _put_back(_CALLERS_ENVIRON)
     return Client(cluster), cluster, f"LocalCluster ({n} worker{'s' if n > 1 else ''})"
 
 
