@@ -12,13 +12,10 @@ samples (0.01-0.08 MB/min measured). A week of unattended running would need abo
 test-oracle logs (the serial stream's last 200 000 frames, the thermocouple's last 100 000 answers) are bounded
 and fill over 3 minutes and 2.8 hours.
 
-Run once on 2026-11-26 (2 shared cores; docs/daemon.md, "Soak", has the whole table). The daemon gave +0.126 ±
-0.048 MB/min and the recorders +0.13 to +0.16, one bound reaching 0.259. Every stream was within 0.3 % of
-nominal, 0 blocks were lost, and all 3 files were closed cleanly. The test does **not pass yet**:
-- the estimator, +0.510 ± 0.007, from its two 1 000 000-entry deques of latencies and work times in
-  daq/estimation/online.py (64 MB, full after ~83 minutes);
-- the web page, +0.458 ± 0.139 (84 -> 478 MB before its fixes, 80 -> 135 MB after), stepping ~1.5 MB each
-  time the viewer's window cycle comes round.
+Run on 2026-11-27 on an otherwise idle 2-core machine: **passes** (1814 s). Slopes ± 95 % bound [MB/min]: daemon
++0.130 ± 0.042, estimator +0.003 ± 0.001, web +0.077 ± 0.008, recorders +0.007 to +0.011; the simulated bench
++0.199 ± 0.044 (not judged). While two other jobs kept both cores busy the memory held flat too, but the motor stream
+ran at 95.4 Hz of 100 and the test failed on that (docs/daemon.md, "Soak").
 """
 
 from __future__ import annotations
