@@ -157,6 +157,45 @@ def pid_alive(pid: int | None) -> bool:
         return True
 
 
+def wait_gone(pid: int | None, timeout: float, poll_s: float = 0.05) -> bool:
+    """True once process ``pid`` has ended (within ``timeout``)."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if not pid_alive(pid):
+            return True
+        time.sleep(poll_s)
+    return not pid_alive(pid)
+
+
+def stop_daemon(proc: subprocess.Popen, wait_s: float = 60.0) -> None:
+    """SIGTERM a ``daq daemon`` child (it ramps down and closes any recording), SIGKILL it after ``wait_s``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def end_bench(pid: int | None, control: str | None, ask_s: float, wait_s: float) -> None:
+    """End a simulated bench, which outlives its daemon by design: asked to exit over ``control`` (waiting ``ask_s``
+    for its answer), then SIGKILLed if it has not gone within ``wait_s``. The one copy for the tests' daemons, the
+    soak and the campaign's supervision."""
+    if not pid_alive(pid):
+        return
+    if control:
+        try:
+            request(control, "exit", timeout_s=ask_s)
+        except TimeoutError:
+            pass
+    if not wait_gone(pid, wait_s):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sim_backends.process", description="a simulated bench")
     ap.add_argument("--rig", required=True)

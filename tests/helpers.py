@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -32,7 +30,7 @@ from daq.errors import InputError
 from daq.io.interchange import write_recording
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
-from sim_backends.process import pid_alive
+from sim_backends.process import end_bench, stop_daemon, wait_gone  # noqa: F401 - wait_gone: the tests' too
 from sim_backends.process import request as sim_request
 
 ROOT = Path(__file__).resolve().parent.parent  # the repository: the working folder of every subprocess
@@ -123,16 +121,6 @@ def wait_for(pred, timeout: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def wait_gone(pid: int, timeout: float) -> bool:
-    """True once process ``pid`` has ended (within ``timeout``)."""
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if not pid_alive(pid):
-            return True
-        time.sleep(0.05)
-    return not pid_alive(pid)
-
-
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago (the OS's pick: no two test workers get the same one)."""
     with socket.socket() as s:
@@ -211,21 +199,8 @@ class DaemonProc:
         return sim_request(self.sim_control, "status")
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        try:  # the bench outlives the daemon by design: end it (unless a later daemon on it already did)
-            if pid_alive(self.sim_pid):
-                sim_request(self.sim_control, "exit", timeout_s=2.0)
-        except TimeoutError:
-            pass
-        wait_gone(self.sim_pid, 10.0)
-        if pid_alive(self.sim_pid):
-            os.kill(self.sim_pid, signal.SIGKILL)
+        stop_daemon(self.proc)
+        end_bench(self.sim_pid, self.sim_control, ask_s=2.0, wait_s=10.0)  # (unless a later daemon on it already did)
 
 
 class WebRig:

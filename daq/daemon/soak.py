@@ -25,7 +25,6 @@ import contextlib
 import json
 import math
 import re
-import signal
 import subprocess
 import sys
 import threading
@@ -49,8 +48,7 @@ from daq.config import Strict
 from daq.io.jsonout import write_json
 from daq.io.png import save_png  # sets the Agg backend (before any figure exists)
 from daq.streaming.bus import Subscriber
-from sim_backends.process import pid_alive
-from sim_backends.process import request as sim_request
+from sim_backends.process import end_bench, stop_daemon
 
 from .control import ControlClient
 
@@ -236,22 +234,8 @@ class _Daemon:
 
     def stop(self) -> int | None:
         """SIGTERM (ramp down, recording closed), then end the bench, which outlives the daemon by design."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        with contextlib.suppress(TimeoutError, KeyError):
-            sim_request(self.fields["sim_control"], "exit", timeout_s=2.0)
-        pid = int(self.fields.get("sim_bench_pid", 0) or 0)
-        t_end = time.monotonic() + 10.0
-        while pid and pid_alive(pid) and time.monotonic() < t_end:
-            time.sleep(0.2)
-        if pid and pid_alive(pid):
-            with contextlib.suppress(ProcessLookupError):
-                psutil.Process(pid).kill()
+        stop_daemon(self.proc)
+        end_bench(int(self.fields.get("sim_bench_pid", 0) or 0), self.fields.get("sim_control"), ask_s=2.0, wait_s=10.0)
         return self.proc.returncode
 
 

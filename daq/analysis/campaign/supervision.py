@@ -21,11 +21,12 @@ import zlib
 from pathlib import Path
 from typing import Callable
 
-from sim_backends.process import pid_alive, request as sim_request
+from sim_backends.process import end_bench, pid_alive, stop_daemon, wait_gone
 
 from .state import DaemonInfo
 
 START_TIMEOUT_S = 180.0  # daemon start (numba caches on a cold machine)
+POLL_S = 0.1  # how often a wait for a process to end looks
 ROOT = Path(__file__).resolve().parents[3]  # the repository: where `python -m daq.cli` finds the packages
 
 
@@ -46,15 +47,6 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def _wait_gone(pid: int | None, timeout: float) -> bool:
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if not pid_alive(pid):
-            return True
-        time.sleep(0.1)
-    return not pid_alive(pid)
-
-
 def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
     """End the daemon and bench a killed campaign left (by their recorded ids, only if they are ours)."""
     if info is None:
@@ -62,20 +54,14 @@ def end_stale(info: DaemonInfo | None, say: Callable[[str], None]) -> None:
 
     if pid_alive(info.pid) and "daemon" in _cmdline(info.pid):
         say(f"campaign: waiting for the daemon of the interrupted run (pid {info.pid}) to ramp down and exit")
-        if not _wait_gone(info.pid, 2.0):  # it got SIGTERM from the kernel when we died; give it time
+        if not wait_gone(info.pid, 2.0, POLL_S):  # it got SIGTERM from the kernel when we died; give it time
             os.kill(info.pid, signal.SIGTERM)
-            if not _wait_gone(info.pid, 30.0):
+            if not wait_gone(info.pid, 30.0, POLL_S):
                 os.kill(info.pid, signal.SIGKILL)
-                _wait_gone(info.pid, 5.0)
+                wait_gone(info.pid, 5.0, POLL_S)
     bench = info.sim_bench_pid
-    if bench and pid_alive(bench) and "sim_backends" in _cmdline(bench) and not _wait_gone(bench, 5.0):
-        if info.sim_control:
-            try:
-                sim_request(info.sim_control, "exit", timeout_s=1.0)
-            except TimeoutError:
-                pass
-        if not _wait_gone(bench, 5.0):
-            os.kill(bench, signal.SIGKILL)
+    if bench and pid_alive(bench) and "sim_backends" in _cmdline(bench) and not wait_gone(bench, 5.0, POLL_S):
+        end_bench(bench, info.sim_control, ask_s=1.0, wait_s=5.0)
 
 
 class DaemonRow:
@@ -120,19 +106,7 @@ class DaemonRow:
     def close(self) -> None:
         """SIGTERM (the daemon ramps down and closes any recording), then end the simulated bench."""
 
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+        stop_daemon(self.proc)
         # the daemon ends its bench as it shuts down; ask it ourselves only if it is still there
-        if self.sim_pid and not _wait_gone(self.sim_pid, 5.0):
-            if self.sim_control:
-                try:
-                    sim_request(self.sim_control, "exit", timeout_s=1.0)
-                except TimeoutError:
-                    pass
-            if not _wait_gone(self.sim_pid, 5.0):
-                os.kill(self.sim_pid, signal.SIGKILL)
+        if self.sim_pid and not wait_gone(self.sim_pid, 5.0, POLL_S):
+            end_bench(self.sim_pid, self.sim_control, ask_s=1.0, wait_s=5.0)
