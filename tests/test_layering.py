@@ -4,7 +4,11 @@ No driver knows whether its peer is simulated (drivers/ never imports the simula
 (daq/io) know nothing of sockets (daq/streaming) or of the daemon; nothing below the command
 line imports it. The table is the README's "What is here" in code.
 
-Decision records: docs/decisions/0003-simulated-instruments-at-the-wire-level.md, docs/decisions/0012-layout-by-layer.md.
+Inside a layer, and inside a package, modules import one another in one direction too: no circle of imports
+(an import inside a function counts; it is still a dependency, only a later one).
+
+Decision records: docs/decisions/0003-simulated-instruments-at-the-wire-level.md, docs/decisions/0012-layout-by-layer.md,
+docs/decisions/0037-no-circles-inside-a-package.md.
 """
 
 from __future__ import annotations
@@ -35,15 +39,15 @@ def _unit(module: str) -> str:
     return parts[0] if parts[0] != "daq" or len(parts) == 1 else f"daq.{parts[1]}"
 
 
-def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+def _module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: Path) -> set[str]:
+def _imports(path: Path, root: Path = ROOT) -> set[str]:
     """Every module a file imports (relative imports resolved), at any depth of the file."""
     tree = ast.parse(path.read_text())
-    me = _module_name(path).split(".")
+    me = _module_name(path, root).split(".")
     pkg = me if path.name == "__init__.py" else me[:-1]
     names: set[str] = set()
     for node in ast.walk(tree):
@@ -60,6 +64,87 @@ def _imports(path: Path) -> set[str]:
 
 def _sources() -> list[Path]:
     return sorted(p for d in PACKAGES for p in (ROOT / d).rglob("*.py"))
+
+
+def _runtime_imports(tree: ast.AST) -> list[ast.Import | ast.ImportFrom]:
+    """The import statements of a file at any depth (in functions too), but not under ``if TYPE_CHECKING:``:
+    those never run, they only name a type for the checker."""
+    found: list[ast.Import | ast.ImportFrom] = []
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            found.append(node)
+        elif isinstance(node, ast.If) and ast.unparse(node.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
+            todo.extend(node.orelse)
+            continue
+        todo.extend(ast.iter_child_nodes(node))
+    return found
+
+
+def import_graph(package_dir: Path) -> dict[str, set[str]]:
+    """module -> the modules of the same package it imports, from the source (ast): imports at any depth of the
+    file, relative ones resolved, those under ``if TYPE_CHECKING:`` left out. ``from p import m`` is an edge to the
+    module ``p.m`` when there is one, else to ``p``; ``import a.b.c`` is an edge to ``a.b.c`` only: the implicit
+    import of the package ``a.b`` is not an edge (else every ``__init__`` that imports its own modules would close
+    a circle)."""
+    root = package_dir.parent
+    files = {_module_name(p, root): p for p in sorted(package_dir.rglob("*.py"))}
+
+    def known(name: str) -> str:  # the longest prefix that is one of our modules ("" if none)
+        while name and name not in files:
+            name = name.rpartition(".")[0]
+        return name
+
+    graph: dict[str, set[str]] = {}
+    for mod, path in files.items():
+        pkg = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
+        edges: set[str] = set()
+        for node in _runtime_imports(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                edges.update(known(a.name) for a in node.names)
+                continue
+            base = node.module or ""
+            if node.level:
+                base = ".".join(pkg[: len(pkg) - node.level + 1] + ([node.module] if node.module else []))
+            edges.update(f"{base}.{a.name}" if f"{base}.{a.name}" in files else known(base) for a in node.names)
+        graph[mod] = edges - {"", mod}
+    return graph
+
+
+def import_circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted, sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
 
 
 def test_every_package_has_a_layer():
@@ -110,3 +195,30 @@ def test_physics_does_not_import_io_or_instruments():
 def test_at_most_eight_modules_directly_in_daq():
     mods = sorted(p.name for p in (ROOT / "daq").glob("*.py"))
     assert len(mods) <= 8, mods
+
+
+def test_no_circle_of_imports_inside_a_package():
+    """A circle (a -> b -> ... -> a) makes import order matter and the modules one lump: none may cut the others
+    loose. daq/io had one of five modules (interchange -> frames -> importer -> runfile/plausible -> interchange)
+    until the Recording and its notebook views moved to daq/io/recording.py (decision 37)."""
+    circles = {pkg: import_circles(import_graph(ROOT / pkg)) for pkg in PACKAGES}
+    assert not any(circles.values()), "\n".join(f"{pkg}: {' <-> '.join(c)}" for pkg, cs in circles.items() for c in cs)
+
+
+def test_the_circle_detector_finds_a_circle(tmp_path: Path):
+    files = {
+        "__init__.py": "from . import a\n",  # the package imports its module: not a circle (a -> pkg is implicit)
+        "a.py": "from pkg.b import x\n",
+        "b.py": "def x():\n    from .c import y\n    return y\n",  # inside a function: counts
+        "c.py": "import pkg.a\n\ny = 1\n",  # closes a -> b -> c -> a
+        "d.py": "from pkg import e\nfrom pkg.sub import m\n",
+        "e.py": "from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from .d import Z\n",  # never runs
+        "sub/__init__.py": "",
+        "sub/m.py": "from .. import d\n",  # closes d -> sub.m -> d
+    }
+    for name, text in files.items():
+        (tmp_path / "pkg" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "pkg" / name).write_text(text)
+    graph = import_graph(tmp_path / "pkg")
+    assert graph["pkg"] == {"pkg.a"} and graph["pkg.e"] == set()
+    assert import_circles(graph) == [["pkg.a", "pkg.b", "pkg.c"], ["pkg.d", "pkg.sub.m"]]

@@ -35,7 +35,7 @@ from __future__ import annotations
 import csv
 import json
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -44,6 +44,7 @@ import numpy as np
 from daq.errors import InputError
 from daq.io import h5recover
 from daq.io.files import atomic_path
+from daq.io.recording import Recording  # its home since decision 37; still importable from here
 
 FORMAT_SIMPLE = "friction-daq recording 1"
 FORMAT_RUN = "friction-daq run 1"
@@ -61,36 +62,6 @@ EVENT_STR = h5py.string_dtype("utf-8")  # variable-length UTF-8: HDF5 1.10 reads
 EVENT_DTYPE = np.dtype([("host_time", "f8"), ("kind", EVENT_STR), ("source", EVENT_STR), ("detail", EVENT_STR),
                         ("count", "i8"), ("gap_s", "f8")])
 EVENT_FIELDS = ("host_time", "kind", "source", "detail", "count", "gap_s")
-
-
-@dataclass
-class Recording:
-    rig: str | None
-    t: np.ndarray
-    channels: dict[str, np.ndarray]
-    units: dict[str, str] = field(default_factory=dict)
-    meta: dict[str, object] = field(default_factory=dict)
-    truth: dict[str, np.ndarray] = field(default_factory=dict)
-    events: list[dict[str, object]] = field(default_factory=list)  # see events_from_array
-
-    # notebook views (daq/io/frames.py, which imports this module: hence the imports inside)
-    def to_pandas(self):
-        """The samples as a pandas DataFrame indexed by t [s]; units and attributes in ``.attrs``."""
-        from .frames import to_pandas
-
-        return to_pandas(self)
-
-    def events_to_pandas(self):
-        """The events as their own pandas DataFrame."""
-        from .frames import events_to_pandas
-
-        return events_to_pandas(self)
-
-    def to_xarray(self):
-        """The samples (and events, over their own dimension) as an xarray Dataset with units."""
-        from .frames import to_xarray
-
-        return to_xarray(self)
 
 
 def events_to_array(events: list[dict[str, object]]) -> np.ndarray:
@@ -156,10 +127,9 @@ def write_csv(rec: Recording, path: str | Path, truth: bool = False) -> None:
         cols.update({f"truth_{k}": v for k, v in rec.truth.items()})
     names = list(cols)
     data = np.column_stack([np.asarray(cols[n], dtype=float) for n in names])
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", newline="") as fh:
-            fh.write(",".join(names) + "\n")
-            np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.9g")
 
 
 def _attr(v: object) -> object:
@@ -170,26 +140,25 @@ def _attr(v: object) -> object:
 
 def write_h5(rec: Recording, path: str | Path) -> None:
     _check_shapes(rec)
-    with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w", libver=LIBVER_SIMPLE) as f:
-            if rec.rig:
-                f.attrs["rig"] = rec.rig
-            for k, v in rec.meta.items():
-                f.attrs[k] = _attr(v)
-            f.attrs["format"] = FORMAT_SIMPLE  # also when rec came from a run file
-            ds = f.create_dataset("t", data=rec.t)
-            ds.attrs["unit"] = "s"
-            g = f.create_group("channels")
-            for name, x in rec.channels.items():
-                d = g.create_dataset(name, data=np.asarray(x, dtype=float))
-                d.attrs["unit"] = rec.units.get(name, "")
-            if rec.truth:
-                tg = f.create_group("truth")
-                for name, x in rec.truth.items():
-                    tg.create_dataset(name, data=np.asarray(x, dtype=float))
-            if rec.events:
-                f.create_dataset("events", data=events_to_array(rec.events))
-                write_event_columns(f)
+    with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=LIBVER_SIMPLE) as f:
+        if rec.rig:
+            f.attrs["rig"] = rec.rig
+        for k, v in rec.meta.items():
+            f.attrs[k] = _attr(v)
+        f.attrs["format"] = FORMAT_SIMPLE  # also when rec came from a run file
+        ds = f.create_dataset("t", data=rec.t)
+        ds.attrs["unit"] = "s"
+        g = f.create_group("channels")
+        for name, x in rec.channels.items():
+            d = g.create_dataset(name, data=np.asarray(x, dtype=float))
+            d.attrs["unit"] = rec.units.get(name, "")
+        if rec.truth:
+            tg = f.create_group("truth")
+            for name, x in rec.truth.items():
+                tg.create_dataset(name, data=np.asarray(x, dtype=float))
+        if rec.events:
+            f.create_dataset("events", data=events_to_array(rec.events))
+            write_event_columns(f)
 
 
 def write_recording(rec: Recording, path: str | Path, truth_in_csv: bool = False) -> None:
@@ -209,7 +178,7 @@ def read_csv(path: str | Path) -> Recording:
     """Read an interchange CSV: header row, first column ``t`` [s], numbers only."""
     src = str(path)
     try:
-        fh = open(path, newline="", encoding="utf-8-sig")  # tolerate the BOM Excel writes
+        fh = open(path, newline="", encoding="utf-8-sig")  # noqa: SIM115 (closed below); utf-8-sig: Excel's BOM
     except OSError as exc:
         raise InputError(src, "(file)", exc.strerror or str(exc)) from None
     try:
