@@ -32,7 +32,8 @@ from daq.sim.rigs import SimRig
 from .cycle_features import load_cycles
 
 SPIKE_SIGMAS = 10.0  # a run of samples this many noise levels off the cubic through its neighbours is a spike
-FREE_POSITIONS_BELOW_HZ = 500.0  # at kHz rates a lightly smoothed start position is already ~sigma/3 off
+FREE_POSITIONS_BELOW_HZ = 750.0  # at 1 kHz a lightly smoothed start position is ~sigma/3 off, at 500 Hz ~sigma; between
+# the two common rates, so that a recording at 999.9 or 1000.1 Hz (a daemon's measured rate) is treated as 1 kHz
 # belt-ndof's model steps per period of the chain's fastest linear mode (BeltData.model_step). Measured on the
 # belt seed model, one mass (3.2 Hz), each window of the 750 000-sample bench record simulated at 0.5 ms and at
 # the coarser step: see docs/decisions/0023-a-model-rate-for-long-records.md.
@@ -93,6 +94,13 @@ class RigData(ABC):
         on brake-2dof), burying weak effects (stick-time at seed strength: 2 % above that floor).
         Estimated from the window's samples, start sample included as a measurement, the floor is
         ~sigma (4.8 um) and stick-time at 100 Hz is found (docs/recovery-table.md).
+
+        Why 500 Hz too: the start position's smoother there spans 7 samples (~0.6-1 sigma of noise left), and in a
+        window that starts stuck the position is the only start value (the velocity is the drive's), so its offset
+        moves the first break-away and the phase of every cycle after it. Measured on the reference spring-slider
+        (Dieterich aging, 40 s at 500 Hz, noise 5e-4 and steps 1e-3 of F/mg): the true model scored 3.9 um on
+        held-out windows from the smoothed sample, worse than the aging-free seed model fitted (3.2 um), so the
+        aging a run must look for was "ruled out" by its own record; with the position estimated, ~the noise.
         """
         return self.velocity_slots + (self.position_slots if rate < FREE_POSITIONS_BELOW_HZ else ())
 
