@@ -27,17 +27,14 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Self, Union
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from daq.physics.effects import CATALOG
 
 from .errors import DaqError, InputError, parse_toml, read_text
+from .strict import Strict  # re-exported: models elsewhere import it from here
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
-
-
-class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class _FieldError(DaqError, ValueError):
@@ -268,9 +265,9 @@ class RigBase(Strict):
     integrator: IntegratorCfg
     sensors: SensorsCfg
     channels: dict[str, ChannelCfg]
-    instruments: dict[str, Instrument] = {}
-    seed_effects: dict[str, dict[str, float]] = {}
-    effects: dict[str, dict[str, float]] = {}
+    instruments: dict[str, Instrument] = Field(default_factory=dict)
+    seed_effects: dict[str, dict[str, float]] = Field(default_factory=dict)
+    effects: dict[str, dict[str, float]] = Field(default_factory=dict)
     chosen: list[str] = Field(default_factory=list, description="which values are our choice, not the paper's")
 
     @model_validator(mode="after")

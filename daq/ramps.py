@@ -14,15 +14,16 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
 
 from .errors import InputError, parse_toml, read_text
+from .strict import Closed
 
 EXP_POINTS = 200  # samples per exponential segment in the table
 
 
-class Segment(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class Segment(Closed):
+    model_config = ConfigDict(allow_inf_nan=False)
     kind: Literal["hold", "linear", "exponential", "seed", "velocity-steps", "slide-hold-slide"]
     duration_s: float | None = Field(None, gt=0.0)
     to_m_per_s: float | None = Field(None, ge=0.0, description="end speed (linear, exponential)")
@@ -37,8 +38,8 @@ class Segment(BaseModel):
                                                     "speed (the rig's acceleration limit applies to it)")
 
 
-class Ramp(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+class Ramp(Closed):
+    model_config = ConfigDict(allow_inf_nan=False)
     name: str = "ramp"
     start_m_per_s: float | None = Field(None, ge=0.0)
     segment: list[Segment] = Field(min_length=1)

@@ -20,6 +20,8 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.strict import Closed
+
 
 class DriverState(str, enum.Enum):
     CLOSED = "closed"
@@ -55,8 +57,8 @@ class DriverEvent(BaseModel):
     count: int | None = None
 
 
-class BackoffCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class BackoffCfg(Closed):
+    model_config = ConfigDict(frozen=True)
     initial_s: float = Field(0.05, gt=0)
     factor: float = Field(2.0, ge=1.0)
     max_s: float = Field(2.0, gt=0)

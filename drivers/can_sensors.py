@@ -35,9 +35,10 @@ from typing import Any, Literal
 import can
 import cantools
 from cantools.database.can import Database, Message
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from daq.config import CanBus, CanSettings, RigConfig
+from daq.strict import Closed
 
 from .base import BackoffCfg, ClockSync, Sample, SampleSource, Unwrapper
 
@@ -101,10 +102,10 @@ class CanBusCfg(CanBus):
         return can.Bus(interface=self.interface, channel=self.channel, **kw)
 
 
-class SensorSelection(BaseModel):
+class SensorSelection(Closed):
     """Which DBC messages to use: a rig's, optionally narrowed to sensor nodes and channels."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     rig: str
     sensors: list[str] | None = Field(None, description="DBC transmitter nodes, e.g. DRUM_GAUGE_A; None = all")
     channels: list[str] | None = Field(None, description="interchange channels, e.g. phi; None = all")
@@ -129,10 +130,10 @@ class SensorSelection(BaseModel):
         return sorted(msgs, key=lambda m: m.frame_id)
 
 
-class CanSensorCfg(BaseModel):
+class CanSensorCfg(Closed):
     """Configuration of one CanSensorDriver."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     name: str = "can-sensors"
     bus: CanBusCfg
     select: SensorSelection

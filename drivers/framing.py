@@ -20,7 +20,9 @@ import math
 import struct
 from dataclasses import dataclass
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
+
+from daq.strict import Closed
 
 SYNC = b"\xa5\x5a"
 MAX_CHANNELS = 16
@@ -66,10 +68,10 @@ def crc16_table(data: bytes | bytearray, crc: int = CRC_INIT) -> int:
     return crc
 
 
-class StreamChannel(BaseModel):
+class StreamChannel(Closed):
     """One value slot of the frame: which channel it carries and the fixed-point scale of its int32."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     name: str = Field(min_length=1)
     scale: float = Field(gt=0, description="channel units per count; finer than the channel's lsb")
     unit: str = ""

@@ -6,18 +6,18 @@ import queue
 import threading
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq.config import ChannelCfg
 from daq.sim.sensors import measure
+from daq.strict import Closed
 
 from .realtime import RealtimeRig, Tick
 
 
-class DeviceClock(BaseModel):
+class DeviceClock(Closed):
     """The instrument's own clock: it starts at ``offset_s`` and runs fast by ``drift_ppm``."""
 
-    model_config = ConfigDict(extra="forbid")
     offset_s: float = 0.0
     drift_ppm: float = 0.0
 
@@ -25,10 +25,10 @@ class DeviceClock(BaseModel):
         return self.offset_s + (host_time - host_ref) * (1.0 + self.drift_ppm * 1e-6)
 
 
-class Faults(BaseModel):
+class Faults(Closed):
     """Faults an instrument can be told to show (switchable at run time)."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(validate_assignment=True)
     garbage_prob: float = Field(0.0, ge=0, le=1, description="chance per frame of a burst of garbage bytes before it")
     drop_prob: float = Field(0.0, ge=0, le=1, description="chance per frame of losing it")
     stuck: bool = False  # the sensor repeats its last value

@@ -12,9 +12,10 @@ import threading
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from daq.config import MotorSettings
+from daq.strict import Closed
 from drivers.motor_protocol import (
     ERR_CHECKSUM,
     ERR_LATCHED,
@@ -37,8 +38,7 @@ from .realtime import RealtimeRig
 STANDSTILL = 1e-3  # [m/s]
 
 
-class RegulatorCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class RegulatorCfg(Closed):
     max_speed: float = Field(gt=0, description="refuses set points above this [m/s]")
     max_accel: float = Field(gt=0, description="ramp acceleration limit [m/s^2]")
     estop_decel: float = Field(gt=0, description="emergency deceleration [m/s^2]")

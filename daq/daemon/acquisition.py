@@ -37,11 +37,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq.config import RigConfig
 from daq.io.stream_format import BusEvent, StreamMeta
 from daq.streaming.bus import BusCfg, Publisher
+from daq.strict import Closed
 from drivers.base import ClockSync, DriverEvent, Sample, SampleSource
 from drivers.factory import RigDrivers
 from drivers.motor import MotorError, MotorUnavailable, SerialMotorRegulator
@@ -52,10 +53,10 @@ MOTOR_STREAM = "motor"
 MOTOR_CHANNELS = ("vb", "vb_set")
 
 
-class AcquisitionCfg(BaseModel):
+class AcquisitionCfg(Closed):
     """How fast to poll, where to publish; the defaults suit the lab's rigs."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     endpoint: str = Field(BusCfg().endpoint, description="where the publisher binds (tcp://host:0 = any port)")
     sndhwm: int = Field(BusCfg().sndhwm, ge=1)
     read_timeout_s: float = Field(0.05, gt=0, le=1.0, description="per read(); bounds block latency and stop time")

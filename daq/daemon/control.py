@@ -40,7 +40,6 @@ from typing import Any, Literal, get_args
 import zmq
 import zmq.auth
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Field,
     ValidationError,
@@ -51,6 +50,7 @@ from pydantic import (
 from zmq.auth.thread import ThreadAuthenticator
 
 from daq.errors import InputError
+from daq.strict import Closed
 
 Op = Literal["status", "ramp", "stop", "estop", "reset", "record_start", "record_stop", "note"]
 READ_ONLY_OPS: frozenset[str] = frozenset({"status"})
@@ -78,10 +78,10 @@ def _accepts(annotation: Any, kinds: tuple[type, ...]) -> bool:
     return annotation in kinds or any(a in kinds for a in get_args(annotation))
 
 
-class _Args(BaseModel):
+class _Args(Closed):
     """Base for per-op arguments: strict types, no unknown keys (a typo must not be ignored)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(strict=True)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -149,10 +149,9 @@ ARGS_MODELS: dict[str, type[_Args]] = {
 }
 
 
-class Request(BaseModel):
+class Request(Closed):
     """One control request; ``args`` is validated against the op's own model and normalised."""
 
-    model_config = ConfigDict(extra="forbid")
     op: Op
     args: dict[str, Any] = Field(default_factory=dict)
     id: str
@@ -168,10 +167,9 @@ class Request(BaseModel):
         return self
 
 
-class Reply(BaseModel):
+class Reply(Closed):
     """One control reply; ``error`` is set exactly when ``ok`` is False."""
 
-    model_config = ConfigDict(extra="forbid")
     id: str
     ok: bool
     result: dict[str, Any] = Field(default_factory=dict)
@@ -180,10 +178,10 @@ class Reply(BaseModel):
         None, description="kind of error: 'malformed'/'input' are the client's to fix (bad request, bad file)")
 
 
-class ControlCfg(BaseModel):
+class ControlCfg(Closed):
     """Where the control socket binds and, optionally, the CURVE keys that allow remote use."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     endpoint: str = Field("tcp://127.0.0.1:5570", description="where the server binds; loopback unless CURVE")
     max_request_bytes: int = Field(
         MAX_MSG_BYTES, ge=1024, le=1 << 28,

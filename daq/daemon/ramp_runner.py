@@ -32,19 +32,20 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq.errors import DaqError, InputError
 from daq.ramps import Ramp, check_limits, load_ramp, ramp_table
+from daq.strict import Closed
 from drivers.motor import MotorDrive, MotorError, MotorUnavailable
 
 State = Literal["idle", "lead-in", "running", "finished", "stopped", "estopped", "aborted"]
 
 
-class RampRunnerCfg(BaseModel):
+class RampRunnerCfg(Closed):
     """How a programme is executed (not what it is)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     rate_hz: float = Field(100.0, ge=50.0, le=1000.0, description="set-point rate")
     at_end: Literal["hold", "stop"] = Field("stop", description="after the last point: hold its speed or STOP")
     time_scale: float = Field(1.0, gt=0.0, description="multiplies the table's times (speeds unchanged)")

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from daq.config import config_text, load_rig
 from daq.errors import InputError
@@ -50,6 +50,7 @@ from daq.ramps import Ramp
 from daq.sim.effectset import parse_effect
 from daq.streaming.bus import Subscriber
 from daq.streaming.recorder import MIN_FREE_BYTES, free_space_refusal
+from daq.strict import Closed
 from drivers.factory import build_drivers
 from sim_backends.process import SimBenchProcess, cross_process_wiring
 
@@ -77,8 +78,7 @@ REGULATOR_POLL_S = 0.2  # STAT? while running: a watchdog trip reaches status, s
 ROOT = Path(__file__).resolve().parents[2]  # the repository: where `python -m daq...` finds the packages
 
 
-class DaemonCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class DaemonCfg(Closed):
     rig: str
     sim: bool = False
     sim_effects: list[str] = Field(default_factory=list, description="hidden effects of the simulated rig")

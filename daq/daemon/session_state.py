@@ -33,11 +33,12 @@ import time
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
 from daq.errors import DaqError, InputError
 from daq.io.h5recover import is_unclean
 from daq.io.runfile import recover_run
+from daq.strict import Closed
 from sim_backends.process import pid_alive, request as bench_request
 
 STATE_DIR_NAME = ".daq-daemon"  # under the data directory, unless --state-dir
@@ -78,10 +79,9 @@ def describe_exit(returncode: int | None) -> str:
 # ----------------------------------------------------------------------------- the models (on disk, in status)
 
 
-class BenchRef(BaseModel):
+class BenchRef(Closed):
     """The simulated bench a session drove, enough to find it again and check it is the same one."""
 
-    model_config = ConfigDict(extra="forbid")
     pid: int
     control: str
     workdir: str
@@ -92,16 +92,14 @@ class BenchRef(BaseModel):
     seed: int
 
 
-class RecordingRef(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class RecordingRef(Closed):
     path: str
     recorder_pid: int
 
 
-class RegulatorReading(BaseModel):
+class RegulatorReading(Closed):
     """The motor regulator as read by a starting daemon (STAT?), and the bench's trip counter with --sim."""
 
-    model_config = ConfigDict(extra="forbid")
     state: str | None = Field(None, description="DISABLED, RUNNING, STOPPING, ESTOP, WATCHDOG; None if unreadable")
     latched: bool = False
     measured: float | None = None
@@ -110,10 +108,9 @@ class RegulatorReading(BaseModel):
     read_at: _dt.datetime
 
 
-class UncleanEnd(BaseModel):
+class UncleanEnd(Closed):
     """A session that ended without an orderly shutdown, as the next one found it."""
 
-    model_config = ConfigDict(extra="forbid")
     pid: int
     started_at: _dt.datetime
     last_alive_at: _dt.datetime = Field(description="the session ended after this (refreshed every HEARTBEAT_S)")
@@ -147,10 +144,9 @@ class UncleanEnd(BaseModel):
                 f"after {local(self.last_alive_at)}{doing}{reg}{note}")
 
 
-class SessionFile(BaseModel):
+class SessionFile(Closed):
     """``RIG.session.json``: one daemon session, and an unacknowledged unclean end before it."""
 
-    model_config = ConfigDict(extra="forbid")
     version: Literal[1] = 1
     rig: str
     state: Literal["running", "clean"]
@@ -164,10 +160,9 @@ class SessionFile(BaseModel):
     unclean_end: UncleanEnd | None = Field(None, description="carried from session to session until daq ctl reset")
 
 
-class RecordingEnd(BaseModel):
+class RecordingEnd(Closed):
     """A recorder that died while the daemon still wanted it (kill -9, OOM, a write error)."""
 
-    model_config = ConfigDict(extra="forbid")
     path: str
     pid: int
     exit: str  # "killed by SIGKILL", "exited with status 1"

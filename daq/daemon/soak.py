@@ -44,10 +44,10 @@ from scipy import stats as sps
 from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI
 from websockets.sync.client import connect
 
-from daq.config import Strict
 from daq.io.jsonout import write_json
 from daq.io.png import save_png  # sets the Agg backend (before any figure exists)
 from daq.streaming.bus import Subscriber
+from daq.strict import Strict
 from sim_backends.process import end_bench, stop_daemon
 
 from .control import ControlClient

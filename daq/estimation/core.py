@@ -13,9 +13,10 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq.config import RigConfig
+from daq.strict import Closed
 
 from .differentiate import fir_bank, noise_gain, sg_coefficients
 from .fit import FitWindow, RunningLawFit, fit_law
@@ -23,10 +24,10 @@ from .regime import classify
 from .rigmodels import RigModel, rig_model
 
 
-class EstimatorCfg(BaseModel):
+class EstimatorCfg(Closed):
     """Tuning of the estimator; None means the rig's default."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     window_s: float | None = Field(None, gt=0.0, description="differentiator window (local polynomial fit)")
     lag: int | None = Field(None, ge=0, description="evaluation lag in samples; None = centre of the window")
     degree: int | None = Field(None, ge=1, le=6, description="local polynomial degree for the body's kinematics")

@@ -16,20 +16,22 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import ConfigDict
 from scipy.optimize import least_squares
+
+from daq.strict import Closed
 
 from .laws import LawDef
 from .regime import switch_distance, switch_positions
 
 
-class RunningLawFit(BaseModel):
+class RunningLawFit(Closed):
     """One fit of the law over one window of the online estimator: values, standard errors, quality.
 
     (Not the model fit of daq/models/shooting.py, whose result is a ShootingFit.)
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     rig: str
     t_start: float
     t_end: float

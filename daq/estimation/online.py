@@ -38,6 +38,7 @@ from daq.config import RigConfig
 from daq.io.stream_format import Block, BusEvent, StreamMeta
 from daq.signals import FloatRing
 from daq.streaming.bus import Publisher, Subscriber
+from daq.strict import Closed
 
 from .align import HoldBuffer, Pending
 from .core import EstimateBlock, EstimatorCfg, FrictionEstimator
@@ -49,10 +50,10 @@ OUT_UNITS = {"F_est": "N", "N_est": "N", "mu_est": "-", "v_rel": "m/s", "slip": 
              "latency": "s"}
 
 
-class OnlineCfg(BaseModel):
+class OnlineCfg(Closed):
     """Where the estimator listens and speaks, and how it schedules work."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     sub_endpoint: str = Field(description="the rig's sample bus (a Publisher's endpoint)")
     pub_endpoint: str = Field("tcp://127.0.0.1:0", description="where the estimator publishes (port 0 = any)")
     streams: tuple[str, ...] | None = Field(None, description="streams to subscribe to; None = all")

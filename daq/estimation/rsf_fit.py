@@ -28,10 +28,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.optimize import least_squares
 
 from daq.physics.rsf import simulate
+from daq.strict import Closed
 
 from .rsf_programme import Event
 
@@ -40,16 +41,14 @@ BIN_FRACTION = 0.01  # bin width / distance from the nearest corner of the progr
 N_PARAM = 7
 
 
-class Estimate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class Estimate(Closed):
     value: float
     se: float = Field(description="standard error (1 sigma); inf where the data do not determine it")
 
 
-class LawFit(BaseModel):
+class LawFit(Closed):
     """One state law fitted to one event."""
 
-    model_config = ConfigDict(extra="forbid")
     law: str
     ok: bool
     mu0: Estimate = Field(description="steady-state friction at v1")
@@ -192,10 +191,9 @@ def law_verdict(fits: dict[str, LawFit]) -> tuple[str, float]:
     return (l1 if margin >= LAW_MARGIN else f"undecided between {l1} and {l2}"), float(margin)
 
 
-class Healing(BaseModel):
+class Healing(Closed):
     """beta = d(Delta mu_peak) / d log10(t_hold) over one recording's holds (Dieterich 1972; Marone 1998)."""
 
-    model_config = ConfigDict(extra="forbid")
     beta: Estimate
     intercept: float
     holds_s: list[float]

@@ -36,11 +36,11 @@ import h5py
 import numpy as np
 from pydantic import Field
 
-from daq.config import Strict
 from daq.errors import InputError
 from daq.io import h5recover
 from daq.io.interchange import FORMAT_RUN, Recording, events_from_array, open_h5, read_recording
 from daq.io.jsonout import dumps_json
+from daq.strict import Strict
 
 CATALOG_NAME = "daq-archive.sqlite"
 ENV = "DAQ_ARCHIVE"  # a catalog path that overrides the search beside the data

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq import __version__
 from daq.config import RigConfig, config_text
@@ -40,14 +40,15 @@ from daq.errors import DaqError
 from daq.io.h5recover import recover
 from daq.io.interchange import EVENT_DTYPE, FORMAT_RUN, LIBVER_RUN, STREAM_RESERVED, write_event_columns
 from daq.io.stream_format import Block, BusEvent, StreamMeta
+from daq.strict import Closed
 
 SOFTWARE = f"friction-daq {__version__}"
 
 
-class WriterCfg(BaseModel):
+class WriterCfg(Closed):
     """How often the file is made durable, and how big its chunks are."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     flush_s: float = Field(0.25, gt=0.0, le=1.0, description="max seconds between flushes (bounds loss on a crash)")
     max_pending_bytes: int = Field(256 << 20, gt=0, description="flush early when this much is queued")
     chunk_s: float = Field(0.5, gt=0.0, description="a chunk holds about this many seconds of a regular stream")

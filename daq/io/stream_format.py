@@ -19,16 +19,18 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
+
+from daq.strict import Closed
 
 SAMPLE_PREFIX = b"S:"
 EVENT_PREFIX = b"E:"
 
 
-class StreamMeta(BaseModel):
+class StreamMeta(Closed):
     """Everything a subscriber needs to interpret a stream's blocks."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     stream: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")
     channels: tuple[str, ...] = Field(min_length=1)
     units: tuple[str, ...]
@@ -38,8 +40,8 @@ class StreamMeta(BaseModel):
     rate_hz: float | None = None  # nominal sample rate, if regular
 
 
-class BlockHeader(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class BlockHeader(Closed):
+    model_config = ConfigDict(frozen=True)
     meta: StreamMeta
     seq: int = Field(ge=0, description="per-stream block counter; a gap means blocks were dropped")
     n: int = Field(ge=0, description="samples in the block")
@@ -104,10 +106,10 @@ def decode_block(parts: list) -> Block:
     return Block(hdr, t, data.reshape(hdr.n, nc), dev)
 
 
-class BusEvent(BaseModel):
+class BusEvent(Closed):
     """An event on the bus: driver events, recorder and estimator notices, operator notes, ramp segments."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     kind: str = Field(min_length=1)
     source: str
     host_time: float

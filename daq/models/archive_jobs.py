@@ -42,10 +42,10 @@ import distributed
 from distributed import Client, LocalCluster, as_completed
 from pydantic import Field
 
-from daq.config import Strict
 from daq.errors import DaqError, InputError
 from daq.io.archive import Catalog, CatalogRow, file_hash
 from daq.sim.run import simulate
+from daq.strict import Strict
 
 from .compare import compare
 from .diagnose import diagnose

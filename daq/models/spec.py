@@ -30,16 +30,16 @@ from daq.config import RigConfig, load_rig, user_rig_file
 from daq.errors import InputError, parse_toml, read_text
 from daq.io.files import atomic_path
 from daq.physics.effects import CATALOG
+from daq.strict import Closed
 
 from .user_effects import load_user_effect
 
 SECTIONS = ("friction", "mechanics")
 
 
-class Param(BaseModel):
+class Param(Closed):
     """One model parameter. ``std`` is written by ``daq fit`` (1-sigma, from the fit's Jacobian)."""
 
-    model_config = ConfigDict(extra="forbid")
     value: float
     free: bool = False
     lo: float | None = None
@@ -55,10 +55,9 @@ class Param(BaseModel):
         return self
 
 
-class Effect(BaseModel):
+class Effect(Closed):
     """An effect in the model: catalog name (or a user effect with ``path``), its form and its parameters."""
 
-    model_config = ConfigDict(extra="forbid")
     path: str | None = None
     form: str | None = None  # one of the catalog effect's forms; None = its default form
     params: dict[str, Param] = Field(default_factory=dict)
@@ -74,8 +73,7 @@ class FitInfo(BaseModel):
     cost: float | None = None
 
 
-class Model(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class Model(Closed):
     rig: str
     law: str
     title: str = ""

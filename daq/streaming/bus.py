@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import zmq
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from daq.io.stream_format import (
     EVENT_PREFIX,
@@ -31,12 +31,13 @@ from daq.io.stream_format import (
     encode_event,
     make_block,
 )
+from daq.strict import Closed
 
 ZERO_COPY_BYTES = 65536  # arrays larger than this are sent without copying
 
 
-class BusCfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class BusCfg(Closed):
+    model_config = ConfigDict(frozen=True)
     endpoint: str = Field("tcp://127.0.0.1:5560", description="where the publisher binds (tcp:// or ipc://)")
     sndhwm: int = Field(10_000, ge=1, description="blocks queued per subscriber before the PUB drops for it")
     rcvhwm: int = Field(10_000, ge=1, description="blocks queued in a subscriber before it drops")

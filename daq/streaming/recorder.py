@@ -24,13 +24,14 @@ import time
 from pathlib import Path
 
 import zmq
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
 
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.io.archive import catalog_new_file
 from daq.io.runfile import BlockRejected, RunWriter, WriterCfg
 from daq.io.stream_format import Block, BusEvent
+from daq.strict import Closed
 
 from . import heap
 from .bus import BusCfg, Subscriber
@@ -55,10 +56,10 @@ def free_space_refusal(path: Path, min_free: int, pending: int = 0) -> str | Non
     return f"only {free / 1e6:.1f} MB free on the disk of {path} (the margin is {min_free / 1e6:.1f} MB)"
 
 
-class RecorderCfg(BaseModel):
+class RecorderCfg(Closed):
     """The recorder process: where it listens and how deep its queue is."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     endpoint: str = BusCfg().endpoint
     also: list[str] = Field(default_factory=list, description="more publishers to record (e.g. the estimator's)")
     rcvhwm: int = Field(100_000, ge=1, description="blocks queued before the subscriber drops (deep: never drop)")

@@ -18,14 +18,15 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from daq.daemon.control import Op, Reply
+from daq.strict import Closed
 
 Role = Literal["operator", "observer"]
 
 
-class WebCfg(BaseModel):
+class WebCfg(Closed):
     """What the daemon tells its web process."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     host: str = "127.0.0.1"
     port: int = Field(0, ge=0, le=65535, description="0: any free port (the ready line says which)")
     bus: str = Field(description="the daemon's sample bus")
@@ -51,36 +52,32 @@ class WebCfg(BaseModel):
     rcvhwm: int = Field(20_000, ge=100, description="bus blocks queued in the web process before it drops")
 
 
-class PipeCommand(BaseModel):
+class PipeCommand(Closed):
     """Web process -> daemon: run this control request (raw JSON, as a client would send it) as ``role``."""
 
-    model_config = ConfigDict(extra="forbid")
     id: int
     role: Role
     request: str
 
 
-class PipeReply(BaseModel):
+class PipeReply(Closed):
     """Daemon -> web process: the control server's reply to command ``id``."""
 
-    model_config = ConfigDict(extra="forbid")
     id: int
     reply: Reply
 
 
-class View(BaseModel):
+class View(Closed):
     """Browser -> web process: what the page shows (time window, plot width in pixels)."""
 
-    model_config = ConfigDict(extra="forbid")
     type: Literal["view"]
     window_s: float = Field(10.0, ge=0.0, le=86_400.0, description="0: the whole run")
     width: int = Field(1000, ge=50, le=8000)
 
 
-class Ack(BaseModel):
+class Ack(Closed):
     """Browser -> web process: frame ``seq`` is drawn (the page's flow control and the latency measurement)."""
 
-    model_config = ConfigDict(extra="forbid")
     type: Literal["ack"]
     seq: int = Field(ge=0)
 
@@ -89,10 +86,9 @@ class ClientMessage(BaseModel):
     msg: Annotated[View | Ack, Field(discriminator="type")]
 
 
-class CommandBody(BaseModel):
+class CommandBody(Closed):
     """``POST /api/command``: one control request; the web process adds the id and the role."""
 
-    model_config = ConfigDict(extra="forbid")
     op: Op
     args: dict[str, Any] = Field(default_factory=dict)
 

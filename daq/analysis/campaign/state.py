@@ -16,13 +16,14 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
 from daq.analysis.paper002.programme import cell_ramp
 from daq.config import config_text, load_rig
 from daq.errors import InputError
 from daq.io.files import atomic_path
 from daq.ramps import check_limits, ramp_table
+from daq.strict import Closed
 
 FORMAT = "friction-daq drum campaign 1"
 STATE = "campaign.json"
@@ -35,10 +36,9 @@ def utc_now() -> str:
 # ----------------------------------------------------------------------------- state (pydantic, JSON)
 
 
-class CampaignCfg(BaseModel):
+class CampaignCfg(Closed):
     """What the campaign runs; stored in the state so a resume runs the very same grid."""
 
-    model_config = ConfigDict(extra="forbid")
     rig: str = Field(description="rig config (id or TOML path) the thrust rows are copies of")
     thrusts_N: list[float]
     speeds_m_per_s: list[float]
@@ -52,15 +52,13 @@ class CampaignCfg(BaseModel):
     cell_figures: bool = True
 
 
-class CellCoef(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class CellCoef(Closed):
     value: float
     se: float | None
     identified: bool
 
 
-class CellResult(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class CellResult(Closed):
     coefficients: dict[str, CellCoef]
     R2: float
     rms: float
@@ -70,8 +68,7 @@ class CellResult(BaseModel):
     v_range_m_per_s: tuple[float, float]
 
 
-class Cell(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class Cell(Closed):
     key: str
     thrust_N: float
     v0_m_per_s: float
@@ -88,10 +85,9 @@ class Cell(BaseModel):
     partial: list[str] = Field(default_factory=list, description="recordings of interrupted attempts, kept aside")
 
 
-class DaemonInfo(BaseModel):
+class DaemonInfo(Closed):
     """The daemon (and simulated bench) this campaign started, so a resume after a kill can end them."""
 
-    model_config = ConfigDict(extra="forbid")
     pid: int
     control: str
     sim_bench_pid: int | None = None
@@ -99,8 +95,7 @@ class DaemonInfo(BaseModel):
     thrust_N: float
 
 
-class CampaignState(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class CampaignState(Closed):
     format: str = FORMAT
     cfg: CampaignCfg
     cells: list[Cell]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from daq.config import RigConfig
 from daq.errors import InputError
@@ -21,6 +21,7 @@ from daq.physics import brake2dof
 from daq.physics.effects import E
 from daq.signals import paper_spectrogram
 from daq.sim.effectset import effect_vector
+from daq.strict import Closed
 
 from .friction import FrictionResult, FrictionSeries, brake_params, friction_series, identify_friction
 from .kinematics import differentiator_name, prepare, sample_rate
@@ -29,10 +30,9 @@ from .spectra import SPEC_FS, SPEC_NOVERLAP, SPEC_NPERSEG, SpectrogramResult, do
 from .transitions import TransitionCfg, TransitionResult, TransitionTrace, detect_transitions
 
 
-class PlaneWindow(BaseModel):
+class PlaneWindow(Closed):
     """A time window of the phase/configuration-plane figure."""
 
-    model_config = ConfigDict(extra="forbid")
     start_s: float
     end_s: float
     vb_mean_m_per_s: float
@@ -40,10 +40,9 @@ class PlaneWindow(BaseModel):
     y1_range_mm: tuple[float, float]
 
 
-class BrakeRunResult(BaseModel):
+class BrakeRunResult(Closed):
     """``daq analyse brake-run`` output (one JSON object)."""
 
-    model_config = ConfigDict(extra="forbid")
     data: str
     rig: str = "brake-2dof"
     rig_config: str
@@ -58,7 +57,7 @@ class BrakeRunResult(BaseModel):
     friction: FrictionResult
     transitions: TransitionResult
     paper_160: list[PaperMark] | None = None
-    figures: list[str] = []
+    figures: list[str] = Field(default_factory=list)
 
 
 @dataclass

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.optimize import least_squares
 
 from daq.config import RigConfig
@@ -32,6 +32,7 @@ from daq.physics import brake2dof
 from daq.physics.friction import mu_brake
 from daq.sim.effectset import effect_vector
 from daq.sim.rigs import make_sim
+from daq.strict import Closed
 
 from .kinematics import VB_WINDOW_S, derivatives, differentiator_name, sample_rate, smooth_line
 
@@ -94,18 +95,16 @@ def kappas(p: np.ndarray) -> tuple[float, float]:
     return a - 1.0, a / b - 1.0
 
 
-class ParamEstimate(BaseModel):
+class ParamEstimate(Closed):
     """A fitted parameter with its standard error (Jacobian of the least-squares problem)."""
 
-    model_config = ConfigDict(extra="forbid")
     value: float
     std: float
 
 
-class BrakeLawFit(BaseModel):
+class BrakeLawFit(Closed):
     """Least-squares fit of the brake's friction law (7) (directly, or through eq. (10)) on the chosen samples."""
 
-    model_config = ConfigDict(extra="forbid")
     target: str = Field(description="what was fitted: 'mu = F/N' (law 7) or 'mu_eff = F/(m g)' (eq. 10 of law 7)")
     params: dict[str, ParamEstimate]
     held: dict[str, float] = Field(description="law parameters held at the rig config's values")
@@ -135,10 +134,9 @@ def _fit(model: Callable[[np.ndarray, float, float], np.ndarray], v: np.ndarray,
                        success=bool(sol.success))
 
 
-class BiasBin(BaseModel):
+class BiasBin(Closed):
     """Residual of mu against the preliminary fit, for slip samples at a given distance from a transition."""
 
-    model_config = ConfigDict(extra="forbid")
     d_from_s: float
     d_to_s: float
     n: int
@@ -146,10 +144,9 @@ class BiasBin(BaseModel):
     rms: float
 
 
-class FrictionResult(BaseModel):
+class FrictionResult(Closed):
     """Eq. (10) effective friction and the fit of law (7), with the measured transition bias."""
 
-    model_config = ConfigDict(extra="forbid")
     diff_window_s: float
     differentiator: str
     v_stick_m_per_s: float

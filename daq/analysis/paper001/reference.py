@@ -7,7 +7,9 @@ windows of its Fig. 11. The analysis compares with them only when asked.
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from daq.strict import Closed
 
 from .transitions import TransitionResult
 
@@ -24,10 +26,9 @@ PAPER_160_SEGMENTS = [
 PAPER_160_BOUNDARIES = [98.0, 110.0, 130.0, 135.0, 140.0, 150.0]
 
 
-class PaperMark(BaseModel):
+class PaperMark(Closed):
     """A segment the paper reports for the V0 = 0.25 m/s, Tmax = 160 s run, beside what we found there."""
 
-    model_config = ConfigDict(extra="forbid")
     start_s: float
     end_s: float
     paper: str

@@ -10,7 +10,9 @@ bandwidth (spectral widening); the transition detectors and the figures use them
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from daq.strict import Closed
 
 SPEC_FS = 100.0  # the paper's spectrogram: MATLAB spectrogram(signal, 512, 256, [], 1E2)
 SPEC_NPERSEG = 512
@@ -18,10 +20,9 @@ SPEC_NOVERLAP = 256
 BAND_HZ = (0.5, 45.0)  # spectral features: above the constant-shift line, below Nyquist of 100 Hz
 
 
-class SpectrogramResult(BaseModel):
+class SpectrogramResult(Closed):
     """The paper's spectrogram settings and the dominant spectral line of x1 per column."""
 
-    model_config = ConfigDict(extra="forbid")
     fs_hz: float = SPEC_FS
     nperseg: int = SPEC_NPERSEG
     noverlap: int = SPEC_NOVERLAP

@@ -13,19 +13,20 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from scipy import signal
 
 from daq.signals import paper_spectrogram
+from daq.strict import Closed
 
 from .kinematics import sample_rate
 from .spectra import SPEC_FS, SPEC_NOVERLAP, SPEC_NPERSEG, dominant_line, entropy_bandwidth, subharmonic_db
 
 
-class TransitionCfg(BaseModel):
+class TransitionCfg(Closed):
     """Thresholds of the transition detectors (documented in docs/analyses-001.md)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
     min_prominence: float = Field(0.05, description="a cycle's peak rises >= this fraction of the run's robust "
                                                     "range (P99.5-P0.5) above its surroundings; below: quiet")
     minor_peak: float = Field(0.25, description="peaks smaller than this fraction of the largest within "
@@ -48,10 +49,9 @@ class TransitionCfg(BaseModel):
                                                      "confirms period doubling (quasi-steady run: -50 dB)")
 
 
-class TransitionSegment(BaseModel):
+class TransitionSegment(Closed):
     """One segment on the timeline: a regime (from cycles) or a widening strip (from the spectrum)."""
 
-    model_config = ConfigDict(extra="forbid")
     track: Literal["regime", "spectrum"]
     kind: str = Field(description="regime: quasi-steady, period-doubling, period-3, period-4, irregular, quiet; "
                                   "spectrum: widening")
@@ -65,10 +65,9 @@ class TransitionSegment(BaseModel):
     bandwidth_ratio: float | None = Field(None, description="median entropy bandwidth / reference")
 
 
-class TransitionResult(BaseModel):
+class TransitionResult(Closed):
     """Segments of the run, both tracks, sorted by start."""
 
-    model_config = ConfigDict(extra="forbid")
     cfg: TransitionCfg
     signal: str
     n_cycles: int

@@ -18,12 +18,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from daq.config import RigConfig, config_for_recording
 from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.io.loading import load_data
+from daq.strict import Closed
 
 from .kinematics import GUARD_S, V_MIN, MuSeries, differentiation_check, mu_series
 from .law import LAW, DrumLawFit, fit_law
@@ -36,10 +37,9 @@ def rig_config_of(rec: Recording, source: str, rig: str | None) -> RigConfig:
     return config_for_recording(rec.meta.get("rig_config"), source, rig, RIG, "drum-mu needs")
 
 
-class DrumMuResult(BaseModel):
+class DrumMuResult(Closed):
     """What ``daq analyse drum-mu`` prints with --json (and writes to REPORT/drum-mu.json)."""
 
-    model_config = ConfigDict(extra="forbid")
     analysis: str = "drum-mu"
     data: str
     rig: str

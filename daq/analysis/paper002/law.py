@@ -16,10 +16,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.optimize import least_squares
 
 from daq.physics.friction import mu_drum
+from daq.strict import Closed
 
 PARAMS = ("A", "B", "C", "D", "E")
 UNITS = {"A": "-", "B": "s/m", "C": "s/m", "D": "s/m", "E": "-"}
@@ -34,18 +35,16 @@ def law(v: np.ndarray, th: np.ndarray | tuple, eps: float) -> np.ndarray:
     return mu_drum(np.asarray(v, dtype=float), A, B, C, E, eps, 1.0) + D * np.asarray(v, dtype=float)
 
 
-class Coef(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class Coef(Closed):
     value: float
     se: float | None = Field(description="standard error (Jacobian, inflated by the residual autocorrelation)")
     unit: str
     identified: bool = Field(description=f"se / |value| < {REL_SE_IDENTIFIED}")
 
 
-class DrumLawFit(BaseModel):
+class DrumLawFit(Closed):
     """Law (3) fitted to (v, mu) samples: coefficients with standard errors, R^2, residual rms."""
 
-    model_config = ConfigDict(extra="forbid")
     coefficients: dict[str, Coef]
     R2: float
     R: float = Field(description="sqrt(R2), the correlation coefficient paper 002 prints (R = 0.7837 in Fig. 5)")

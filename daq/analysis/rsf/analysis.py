@@ -25,23 +25,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from daq.config import RigConfig, config_for_recording
 from daq.errors import InputError
 from daq.estimation.rsf_fit import Healing, LawFit, fit_law, friction_curve, healing_rate, law_verdict, start_values
 from daq.estimation.rsf_programme import Event, events, load_point_travel, plateaus, programme_table
 from daq.io.loading import load_data
+from daq.strict import Closed
 
 RIG = "belt-ndof"
 LAW_NAMES = ("aging", "slip")
 RETRY_STIFFNESS = (10.0, 0.1)  # a failed fit is tried again from these multiples of the starting stiffness
 
 
-class RsfEvent(BaseModel):
+class RsfEvent(Closed):
     """One velocity step or one hold, reduced."""
 
-    model_config = ConfigDict(extra="forbid")
     data: str
     index: int
     kind: str = Field(description="'step' (v1 -> v2) or 'hold' (v1 -> rest for hold_s -> v2)")
@@ -58,8 +58,7 @@ class RsfEvent(BaseModel):
     law_margin: float = Field(description="Delta RSS / sigma^2 between the two laws (2 ln likelihood ratio)")
 
 
-class RsfFile(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class RsfFile(Closed):
     data: str
     rate_Hz: float
     samples: int
@@ -68,10 +67,9 @@ class RsfFile(BaseModel):
     healing: Healing | None = Field(description="beta over the recording's holds (None: fewer than two)")
 
 
-class RsfResult(BaseModel):
+class RsfResult(Closed):
     """What ``daq analyse rsf`` prints with --json (and writes to REPORT/rsf.json)."""
 
-    model_config = ConfigDict(extra="forbid")
     analysis: str = "rsf"
     laws: list[str]
     stiffness: str = Field(description="'fitted' or 'fixed' at the rig file's k / N")
