@@ -26,7 +26,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 # grows or shrinks by tens of seconds; a new long file belongs in the list.
 RUN_FIRST = (
     # computations
-    "test_rsf.py",  # 137 s: two of the user's paths, a minute each
+    "test_rsf.py",  # 80 s: two of the user's paths
     "test_propose_loop.py",  # 90 s: two experiment loops through the CLI on the reference rig
     "test_recovery.py",  # 74 s
     "test_diagnose.py",  # 74 s
