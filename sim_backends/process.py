@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -165,6 +166,22 @@ def wait_gone(pid: int | None, timeout: float, poll_s: float = 0.05) -> bool:
             return True
         time.sleep(poll_s)
     return not pid_alive(pid)
+
+
+def read_ready(proc: subprocess.Popen, timeout_s: float, hint: str = "") -> dict[str, str]:
+    """The fields (``key=value``) of a ``daq daemon`` child's ready line, its first line on stdout, waited for at
+    most ``timeout_s``. If another line comes, or none, the child is killed and RuntimeError says what came
+    (``hint`` appended: where its stderr is). The rest of its stdout is the caller's to read. The one copy for the
+    tests' daemons, the soak and the web benchmark."""
+    box: list[str] = []
+    reader = threading.Thread(target=lambda: box.append(proc.stdout.readline()), name="daemon-ready", daemon=True)
+    reader.start()
+    reader.join(timeout_s)
+    line = box[0] if box else ""
+    if "ready" not in line:
+        proc.kill()
+        raise RuntimeError(f"the daemon did not start within {timeout_s:g} s: {line.strip()!r}{hint}")
+    return dict(re.findall(r"(\w+)=(\S+)", line))
 
 
 def stop_daemon(proc: subprocess.Popen, wait_s: float = 60.0) -> None:

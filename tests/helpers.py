@@ -30,7 +30,7 @@ from daq.errors import InputError
 from daq.io.interchange import write_recording
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
-from sim_backends.process import end_bench, stop_daemon, wait_gone  # noqa: F401 - wait_gone: the tests' too
+from sim_backends.process import end_bench, read_ready, stop_daemon, wait_gone  # noqa: F401 - wait_gone: the tests' too
 from sim_backends.process import request as sim_request
 
 ROOT = Path(__file__).resolve().parent.parent  # the repository: the working folder of every subprocess
@@ -153,15 +153,7 @@ class DaemonProc:
                                      cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.err: list[str] = []
         threading.Thread(target=self._read_err, daemon=True).start()
-        box: list[str] = []
-        th = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
-        th.start()
-        th.join(START_S)
-        line = box[0] if box else ""
-        if "ready" not in line:
-            self.proc.kill()
-            raise AssertionError(f"daemon did not start: {line!r}")
-        fields = dict(re.findall(r"(\w+)=(\S+)", line))
+        fields = read_ready(self.proc, START_S)
         self.endpoint = fields["control"]
         self.sim_control = fields["sim_control"]
         self.sim_pid = int(fields["sim_bench_pid"])

@@ -40,12 +40,15 @@ from daq.daemon.control import ControlClient
 from daq.errors import InputError
 from daq.io.stream_format import Block
 from daq.streaming.bus import Subscriber
+from sim_backends.process import read_ready
+from sim_backends.process import request as sim_request
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"
 CHROME_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                 "--disable-component-update", "--disable-sync", "--no-first-run")
 GOAL_P99_MS = 100.0
+START_S = 180.0  # the daemon's first start compiles/loads numba caches
 ACQUISITION_STREAMS = ("laser_serial", "motor", "thermocouple")  # the estimator's t is delayed by design
 RAMP = 'start_m_per_s = 0.0\n[[segment]]\nkind = "linear"\nduration_s = 0.5\nto_m_per_s = 0.15\n' \
        '[[segment]]\nkind = "hold"\nduration_s = 600.0\n'
@@ -126,17 +129,12 @@ def _start_daemon(work: Path) -> tuple[subprocess.Popen, dict[str, str]]:
                              "--data-dir", str(work / "data"), "--control", "tcp://127.0.0.1:0", "--bus",
                              "tcp://127.0.0.1:0", "--workdir", str(work / "dev"), "--web", "127.0.0.1:0"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    line = proc.stdout.readline()
-    if "ready" not in line:
-        proc.kill()
-        raise RuntimeError(f"the daemon did not start: {line!r}")
+    fields = read_ready(proc, START_S)
     threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()
-    return proc, dict(re.findall(r"(\w+)=(\S+)", line))
+    return proc, fields
 
 
 def _stop_daemon(proc: subprocess.Popen, fields: dict[str, str]) -> None:
-    from sim_backends.process import request as sim_request  # the bench outlives the daemon by design
-
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
         try:

@@ -48,7 +48,7 @@ from daq.io.jsonout import write_json
 from daq.io.png import save_png  # sets the Agg backend (before any figure exists)
 from daq.streaming.bus import Subscriber
 from daq.strict import Strict
-from sim_backends.process import end_bench, stop_daemon
+from sim_backends.process import end_bench, read_ready, stop_daemon
 
 from .control import ControlClient
 
@@ -211,17 +211,8 @@ class _Daemon:
                                       "--web", "127.0.0.1:0"],
                                      cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         threading.Thread(target=self._read_err, name="soak-daemon-stderr", daemon=True).start()
-        box: list[str] = []
-        reader = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
-        reader.start()
-        reader.join(START_TIMEOUT_S)
-        line = box[0] if box else ""
-        if "ready" not in line:
-            self.proc.kill()
-            raise RuntimeError(f"the daemon did not start within {START_TIMEOUT_S:g} s: {line.strip()!r} "
-                               f"(its stderr: {work / 'daemon.log'})")
+        self.fields = read_ready(self.proc, START_TIMEOUT_S, f" (its stderr: {work / 'daemon.log'})")
         threading.Thread(target=lambda: [None for _ in self.proc.stdout], daemon=True).start()
-        self.fields = dict(re.findall(r"(\w+)=(\S+)", line))
         log(f"soak: daemon pid {self.proc.pid} ready: web {self.fields.get('web')}, bench pid "
             f"{self.fields.get('sim_bench_pid')}")
 
