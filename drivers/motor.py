@@ -17,6 +17,7 @@ from abc import ABC, abstractmethod
 import serial
 from pydantic import Field
 
+from daq.background import BackgroundLoop
 from daq.config import MotorSettings, RigConfig
 from daq.errors import DaqError
 
@@ -103,8 +104,7 @@ class SerialMotorRegulator(MotorDrive):
         self._lock = threading.RLock()
         self._backoff = Backoff(cfg.backoff)
         self._hb_seq = 0
-        self._hb_stop = threading.Event()
-        self._hb_thread: threading.Thread | None = None
+        self._hb = BackgroundLoop(self._heartbeat, f"{name}-heartbeat", interval=cfg.heartbeat_s)
         self._lost_at: float | None = None
 
     # --- connection
@@ -283,25 +283,18 @@ class SerialMotorRegulator(MotorDrive):
 
     # --- heartbeat
     def start_heartbeat(self) -> None:
-        if self._hb_thread is not None:
-            return
-        self._hb_stop.clear()
-        self._hb_thread = threading.Thread(target=self._heartbeat, name=f"{self.name}-heartbeat", daemon=True)
-        self._hb_thread.start()
+        self._hb.start()
 
     def stop_heartbeat(self) -> None:
-        self._hb_stop.set()
-        if self._hb_thread is not None:
-            self._hb_thread.join(timeout=2.0)
-            self._hb_thread = None
+        self._hb.stop(timeout=2.0)
 
     def _heartbeat(self) -> None:
-        while not self._hb_stop.wait(self.cfg.heartbeat_s):
-            self._hb_seq = (self._hb_seq + 1) % 10000
-            try:
-                reply = self.request(f"HB {self._hb_seq}")
-            except (MotorUnavailable, MotorError):
-                continue  # reconnecting; the regulator's watchdog covers the gap
-            if reply != f"HB {self._hb_seq}":
-                self.frame_errors += 1
-                self.log.emit("frame_error", f"heartbeat echo {reply!r}")
+        """One beat, every ``heartbeat_s`` (the first one period after start)."""
+        self._hb_seq = (self._hb_seq + 1) % 10000
+        try:
+            reply = self.request(f"HB {self._hb_seq}")
+        except (MotorUnavailable, MotorError):
+            return  # reconnecting; the regulator's watchdog covers the gap
+        if reply != f"HB {self._hb_seq}":
+            self.frame_errors += 1
+            self.log.emit("frame_error", f"heartbeat echo {reply!r}")

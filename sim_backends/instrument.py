@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import queue
-import threading
 
 import numpy as np
 from pydantic import ConfigDict, Field
 
+from daq.background import BackgroundLoop
 from daq.config import ChannelCfg
 from daq.sim.sensors import measure
 from daq.strict import Closed
@@ -54,8 +54,7 @@ class SimInstrument:
         self._q: queue.Queue[Tick] = queue.Queue(maxsize=max_backlog)
         self._stuck_value: dict[str, float] = {}
         self.ticks_dropped = 0
-        self._running = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._next_tick, f"sim-{name}")
 
     # --- sensor model plus faults
     def measured(self, tick: Tick) -> dict[str, np.ndarray]:
@@ -82,27 +81,22 @@ class SimInstrument:
             self.ticks_dropped += 1
 
     def start(self) -> None:
-        self._running.set()
         self.rig.subscribe(self._on_tick)
-        self._thread = threading.Thread(target=self._loop, name=f"sim-{self.name}", daemon=True)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
         self.rig.unsubscribe(self._on_tick)
-        self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop(timeout=2.0)
         self.close()
 
-    def _loop(self) -> None:
-        while self._running.is_set():
-            try:
-                tick = self._q.get(timeout=0.05)
-            except queue.Empty:
-                self.idle()
-                continue
-            self.emit(tick)
+    def _next_tick(self) -> None:
+        """Emit the next queued tick, or idle when none came within 50 ms."""
+        try:
+            tick = self._q.get(timeout=0.05)
+        except queue.Empty:
+            self.idle()
+            return
+        self.emit(tick)
 
     def emit(self, tick: Tick) -> None:
         """Encode and send one tick's samples (implemented by each instrument)."""

@@ -8,12 +8,12 @@ until ``RST`` at standstill.
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
 from pydantic import Field
 
+from daq.background import BackgroundLoop
 from daq.config import MotorSettings
 from daq.strict import Closed
 from drivers.motor_protocol import (
@@ -81,8 +81,7 @@ class SimMotorRegulator:
         self.late_replies = 0  # fault: answer the next N commands only after late_by_s (a starved regulator)
         self.late_by_s = 0.0
         self._lines = LineBuffer()
-        self._running = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(lambda: self.serve_once(0.005), "sim-motor")
 
     # --- what the tachometer reads
     def measured_speed(self) -> float:
@@ -198,18 +197,9 @@ class SimMotorRegulator:
 
     # --- threading
     def start(self) -> "SimMotorRegulator":
-        self._running.set()
         self.last_command = time.monotonic()
-        self._thread = threading.Thread(target=self._loop, name="sim-motor", daemon=True)
-        self._thread.start()
+        self._loop.start()
         return self
 
     def stop(self) -> None:
-        self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-
-    def _loop(self) -> None:
-        while self._running.is_set():
-            self.serve_once(0.005)
+        self._loop.stop(timeout=2.0)

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from daq.background import BackgroundLoop
 from daq.config import RigConfig
 from daq.sim.effectset import EffectRequest, effect_vector
 from daq.sim.rigs import Chunk, make_sim
@@ -56,8 +57,7 @@ class RealtimeRig:
         self.last_tick: Tick | None = None
         self._listeners: list[Listener] = []
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
-        self._running = threading.Event()
+        self._loop = BackgroundLoop(self._tick, "realtime-rig")
         self.wall0 = time.monotonic()
 
     # --- the motor's side
@@ -76,7 +76,7 @@ class RealtimeRig:
     @property
     def running(self) -> bool:
         """True while the rig advances in real time on its own thread (not stepped by a caller)."""
-        return self._thread is not None
+        return self._loop.running
 
     def subscribe(self, fn: Listener) -> None:
         self._listeners.append(fn)
@@ -118,23 +118,18 @@ class RealtimeRig:
 
     def start(self) -> None:
         """Run in a background thread, paced to the wall clock (times time_scale)."""
-        if self._thread is not None:
+        if self._loop.running:
             return
-        self._running.set()
         self.wall0 = time.monotonic() - self.t / self.time_scale
-        self._thread = threading.Thread(target=self._loop, name="realtime-rig", daemon=True)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop(timeout=2.0)
 
-    def _loop(self) -> None:
-        while self._running.is_set():
-            due = self.wall0 + (self.t + self.tick_s * self.time_scale) / self.time_scale
-            delay = due - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            self.step(self.tick_s * self.time_scale)
+    def _tick(self) -> None:
+        """Wait until the next tick is due on the wall clock, then step."""
+        due = self.wall0 + (self.t + self.tick_s * self.time_scale) / self.time_scale
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        self.step(self.tick_s * self.time_scale)

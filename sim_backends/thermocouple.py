@@ -7,6 +7,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+from daq.background import BackgroundLoop
 from daq.config import ThermocoupleSettings
 
 from .instrument import DeviceClock, Faults, SimInstrument
@@ -61,8 +62,9 @@ class SimThermocouple(SimInstrument):
         self.error_text = "ERR OPEN CIRCUIT"
         self.answers: collections.deque[Answer] = collections.deque(maxlen=100_000)
         self._value_lock = threading.Lock()
-        self._server: threading.Thread | None = None
-        self._serving = threading.Event()
+        self._server = BackgroundLoop(self._serve_once, f"sim-{name}-cmd")
+        self._line = bytearray()  # the command line read so far (server thread)
+        self._was_plugged = True
 
     # --- the measurement side (instrument thread)
     def emit(self, tick: Tick) -> None:
@@ -76,38 +78,33 @@ class SimThermocouple(SimInstrument):
     def start(self) -> None:
         """Start the measurement thread and the command server."""
         super().start()
-        self._serving.set()
-        self._server = threading.Thread(target=self._serve, name=f"sim-{self.name}-cmd", daemon=True)
+        self._line.clear()
+        self._was_plugged = self.port.plugged
         self._server.start()
 
     def stop(self) -> None:
         """Stop both threads."""
-        self._serving.clear()
-        if self._server is not None:
-            self._server.join(timeout=2.0)
-            self._server = None
+        self._server.stop(timeout=2.0)
         super().stop()
 
-    def _serve(self) -> None:
+    def _serve_once(self) -> None:
         """Read command lines (CR, LF or CRLF terminated) and answer each at once."""
-        line = bytearray()
-        was_plugged = self.port.plugged
-        while self._serving.is_set():
-            if not self.port.plugged:
-                was_plugged = False
-                time.sleep(0.02)
-                continue
-            if not was_plugged:  # a fresh pty: no half line from before the unplug
-                line.clear()
-                was_plugged = True
-            data = self.port.read(timeout=0.05, n=256)
-            for b in data:
-                if b in (0x0A, 0x0D):
-                    if line:
-                        self._answer(line.decode("ascii", "replace").strip())
-                        line.clear()
-                elif len(line) < 64:
-                    line.append(b)
+        if not self.port.plugged:
+            self._was_plugged = False
+            time.sleep(0.02)
+            return
+        line = self._line
+        if not self._was_plugged:  # a fresh pty: no half line from before the unplug
+            line.clear()
+            self._was_plugged = True
+        data = self.port.read(timeout=0.05, n=256)
+        for b in data:
+            if b in (0x0A, 0x0D):
+                if line:
+                    self._answer(line.decode("ascii", "replace").strip())
+                    line.clear()
+            elif len(line) < 64:
+                line.append(b)
 
     def _reply_to(self, command: str) -> tuple[str | None, float | None, float | None]:
         """The meter's command set: TEMP? and *IDN?; anything else is an error reply."""

@@ -21,7 +21,7 @@ PACKAGES = ("daq", "drivers", "sim_backends")
 
 # bottom to top; a unit is a package (daq.x for daq's subpackages and top-level modules)
 LAYERS: list[set[str]] = [
-    {"daq", "daq.errors", "daq.strict"},
+    {"daq", "daq.background", "daq.errors", "daq.strict"},
     {"daq.physics", "daq.ramps", "daq.signals"},
     {"daq.config"},
     {"daq.io", "drivers"},

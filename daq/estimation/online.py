@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-import threading
 import time
 from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Literal
@@ -34,6 +33,7 @@ import numpy as np
 import zmq
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.background import BackgroundLoop
 from daq.config import RigConfig
 from daq.io.stream_format import Block, BusEvent, StreamMeta
 from daq.signals import FloatRing
@@ -115,8 +115,7 @@ class OnlineEstimator:
         # per published block: the oldest sample's latency and the work it took (for benchmarks, monitoring)
         self.latency_log = FloatRing(1_000_000)
         self.work_log = FloatRing(1_000_000)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(lambda: self.poll(0.02), "online-estimator")
 
     # ------------------------------------------------------------------ lifecycle
     @staticmethod
@@ -142,18 +141,13 @@ class OnlineEstimator:
                 self._fall_back_to_thread(exc)
 
     def start(self) -> "OnlineEstimator":
-        """Run the loop in a background thread (the sockets are used by that thread only)."""
-        self._stop.clear()
-        self._thread = threading.Thread(target=self.run, name="online-estimator", daemon=True)
-        self._thread.start()
+        """Poll in a background thread (the sockets are used by that thread only) until stop()."""
+        self._loop.start()
         return self
 
     def stop(self) -> None:
         """Ask the loop thread to finish and wait for it."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10.0)
-            self._thread = None
+        self._loop.stop(timeout=10.0)
 
     def close(self) -> None:
         """Stop, then release the sockets and the fit worker."""
@@ -162,12 +156,6 @@ class OnlineEstimator:
             self._executor.shutdown(wait=False, cancel_futures=True)
         self.sub.close()
         self.pub.close()
-
-    def run(self, duration: float | None = None) -> None:
-        """Poll until stop() (or for ``duration`` seconds)."""
-        end = None if duration is None else time.monotonic() + duration
-        while not self._stop.is_set() and (end is None or time.monotonic() < end):
-            self.poll(0.02)
 
     # ------------------------------------------------------------------ one step
     def poll(self, timeout: float = 0.02) -> int:

@@ -26,6 +26,7 @@ from pathlib import Path
 import zmq
 from pydantic import ConfigDict, Field, ValidationError
 
+from daq.background import BackgroundLoop
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.io.archive import catalog_new_file
@@ -249,11 +250,10 @@ def main(argv: list[str] | None = None) -> int:
     orphaned = threading.Event()
     if args.parent_pid:
         def watch_parent() -> None:
-            while not rec._stop.wait(0.5):
-                if os.getppid() != args.parent_pid:
-                    orphaned.set()
-                    rec.stop()
-        threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
+            if os.getppid() != args.parent_pid:
+                orphaned.set()
+                rec.stop()
+        BackgroundLoop(watch_parent, "parent-watch", interval=0.5, stop=rec._stop).start()
     heap_stop = threading.Event()
     heap.start(heap_stop)  # resident memory: what the recorder holds, not the high-water mark of its heap
     print(f"ready {args.endpoint} {writer.path}", flush=True)

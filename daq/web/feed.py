@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from daq.background import BackgroundLoop
 from daq.estimation.cycles import CYCLE_STREAM
 from daq.io.stream_format import Block, BusEvent
 from daq.signals import FloatRing
@@ -174,16 +175,14 @@ class BusFeed:
         self.status: dict[str, Any] | None = None
         self.status_seq = 0
         self.latency = LatencyBook()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="web-bus", daemon=True)
+        self._loop = BackgroundLoop(self._receive, "web-bus")
 
     def start(self) -> "BusFeed":
-        self._thread.start()
+        self._loop.start()
         return self
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
+        self._loop.stop(timeout=2)
         self.sub.close()
 
     def now(self) -> float:
@@ -191,12 +190,12 @@ class BusFeed:
         return time.monotonic() - self.origin
 
     # ------------------------------------------------------------------ the bus thread
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            msg = self.sub.recv(0.1)
-            while msg is not None:
-                self._take(msg)
-                msg = self.sub.recv(0)
+    def _receive(self) -> None:
+        """Take what has arrived (waiting up to 0.1 s for the first message)."""
+        msg = self.sub.recv(0.1)
+        while msg is not None:
+            self._take(msg)
+            msg = self.sub.recv(0)
 
     def _take(self, msg: Block | BusEvent) -> None:
         if isinstance(msg, Block):

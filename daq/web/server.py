@@ -57,6 +57,7 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from daq.background import BackgroundLoop
 from daq.daemon.control import DuplicateKey, Reply, is_local_endpoint, loads_strict
 from daq.streaming import heap
 
@@ -166,22 +167,21 @@ class DaemonLink:
         return box[0]
 
 
-def _status_loop(link: DaemonLink, feed: BusFeed, period: float, stop: threading.Event) -> None:
-    """The daemon's status for every page, every ``period`` s (an observer's request: read-only)."""
-    while not stop.wait(period):
-        try:
-            r = link.call("observer", "status", timeout=5.0)
-        except (TimeoutError, OSError, ValueError):
-            continue
-        if r.ok:
-            st = dict(r.result)
-            rec = st.get("recording")
-            if rec:
-                try:
-                    st["recording"] = {**rec, "size_bytes": os.stat(rec["path"]).st_size}
-                except OSError:
-                    pass
-            feed.set_status(st)
+def _poll_status(link: DaemonLink, feed: BusFeed) -> None:
+    """The daemon's status for every page (an observer's request: read-only); main() polls it every status_s."""
+    try:
+        r = link.call("observer", "status", timeout=5.0)
+    except (TimeoutError, OSError, ValueError):
+        return
+    if r.ok:
+        st = dict(r.result)
+        rec = st.get("recording")
+        if rec:
+            try:
+                st["recording"] = {**rec, "size_bytes": os.stat(rec["path"]).st_size}
+            except OSError:
+                pass
+        feed.set_status(st)
 
 
 class WebApp:
@@ -382,15 +382,13 @@ def main() -> int:
     for name in ("uvicorn.error", "uvicorn.asgi", "uvicorn"):  # configured by uvicorn.Config just above
         logging.getLogger(name).addFilter(OneLineErrors())
     stop = threading.Event()
-    threading.Thread(target=_status_loop, args=(link, feed, cfg.status_s, stop), name="status", daemon=True).start()
+    BackgroundLoop(lambda: _poll_status(link, feed), "status", interval=cfg.status_s, stop=stop).start()
     heap.start(stop)  # resident memory: what the process holds, not the high-water mark of its heap
 
-    def watch() -> None:
-        while not stop.wait(0.25):
-            if link.closed.is_set() or (cfg.parent_pid and os.getppid() != cfg.parent_pid):
-                server.should_exit = True
-                return
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    def watch() -> None:  # until the finally below: asking uvicorn to exit again is a no-op
+        if link.closed.is_set() or (cfg.parent_pid and os.getppid() != cfg.parent_pid):
+            server.should_exit = True
+    BackgroundLoop(watch, "parent-watch", interval=0.25, stop=stop).start()
     link.send_line(json.dumps({"ready": True, "pid": os.getpid(), "url": url_of(cfg.host, port)}))
     try:
         server.run(sockets=[sock])
