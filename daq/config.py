@@ -124,11 +124,16 @@ class InstrumentSettings(Strict):
         return None
 
 
-class MotorSettings(InstrumentSettings):
+class SerialLine(Strict):
+    """Where an instrument on a serial line is: its port (each family sets its own ``baudrate``)."""
+
+    url: str = Field(min_length=1, description="pyserial URL or device path")
+
+
+class MotorSettings(SerialLine, InstrumentSettings):
     """The belt/drum motor regulator on a serial line (docs/protocols/motor-regulator.md)."""
 
     family: Literal["motor-regulator"] = "motor-regulator"
-    url: str = Field(min_length=1, description="pyserial URL or device path")
     baudrate: int = Field(115200, gt=0)
     watchdog_ms: int = Field(500, ge=50, le=10000, description="regulator stops the belt after this silence")
     heartbeat_s: float = Field(0.1, gt=0, description="heartbeat period; must be well below watchdog_ms")
@@ -155,10 +160,9 @@ class CanSettings(CanBus, InstrumentSettings):
         return sensor_rate_Hz
 
 
-class StreamPort(Strict):
+class StreamPort(SerialLine):
     """The serial line of a high-rate binary sensor stream."""
 
-    url: str = Field(min_length=1, description="pyserial URL or device path")
     baudrate: int = Field(921_600, gt=0)
 
 
@@ -173,11 +177,10 @@ class StreamSettings(StreamPort, InstrumentSettings):
         return sensor_rate_Hz
 
 
-class ThermocoupleSettings(InstrumentSettings):
+class ThermocoupleSettings(SerialLine, InstrumentSettings):
     """The slow thermocouple meter on a serial line (docs/protocols/thermocouple.md)."""
 
     family: Literal["thermocouple"] = "thermocouple"
-    url: str = Field(min_length=1, description="pyserial URL or device path")
     baudrate: int = Field(9600, gt=0)
     poll_hz: float = Field(10.0, gt=0, le=50)
     enabled: bool = True

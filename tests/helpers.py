@@ -227,3 +227,23 @@ class WebRig:
         self._stack.close()
         self.client.close()
         self.d.close()
+
+
+def expect_read_error(read, path, field: str, *fragments: str) -> InputError:
+    """``read(path)`` fails with one InputError naming ``path`` (as given) and ``field`` (see expect_error)."""
+    try:
+        read(path)
+    except InputError as exc:
+        expect_error(exc, str(path), field, *fragments)
+        return exc
+    raise AssertionError(f"{getattr(read, '__name__', read)}({path!r}) raised no InputError")
+
+
+def brake_on_serial_stream():
+    """The brake rig wired the alternative way: x1 and phi on the binary serial stream, the CAN bus off."""
+    from daq.config import parse_rig
+
+    data = load_rig("brake-2dof").model_dump(mode="json", exclude_none=True)
+    data["instruments"]["can"]["enabled"] = False
+    data["instruments"]["laser_serial"]["enabled"] = True
+    return parse_rig(data, "test")

@@ -10,9 +10,10 @@ from collections import defaultdict
 
 import numpy as np
 import pytest
+from helpers import brake_on_serial_stream
 from pydantic import ValidationError
 
-from daq.config import load_rig, parse_rig
+from daq.config import load_rig
 from daq.daemon.acquisition import Acquisition, AcquisitionCfg
 from daq.io.stream_format import Block, BusEvent
 from daq.streaming.bus import Subscriber
@@ -140,10 +141,7 @@ def test_driver_events_and_unplugged_thermocouple(bench):
 
 def test_framed_serial_stream_is_one_stream(tmp_path):
     """The binary serial stream carries x1 and phi in one frame: one stream, rows of one frame each."""
-    data = load_rig("brake-2dof").model_dump(mode="json", exclude_none=True)
-    data["instruments"]["can"]["enabled"] = False
-    data["instruments"]["laser_serial"]["enabled"] = True
-    cfg = parse_rig(data, "test")
+    cfg = brake_on_serial_stream()
     with SimulatedHardware(cfg, tmp_path) as hw:
         drivers = build_drivers(cfg, hw.endpoints())
         drivers.open()

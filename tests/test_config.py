@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import tomli_w
-from helpers import expect_error
+from helpers import expect_error, expect_read_error
 from pydantic import ValidationError
 
 from daq.config import CONFIG_DIR, BeltRig, BrakeRig, DrumRig, config_text, load_rig, parse_rig, rig_ids
@@ -227,47 +227,27 @@ def test_bad_or_missing_rig_field(tmp_path, rig_value):
 # ---------------------------------------------------------------- bad configs: effects
 
 
-def test_unknown_effect_names_the_effect_field(tmp_path):
-    data = rig_data("brake-2dof")
-    data["effects"]["stick-slip"] = {"gain": 1.0}
-    err = load_bad(tmp_path, data)
-    expect_error(err, err.source, "effects.stick-slip", "unknown effect", "stick-time")
-
-
-def test_unknown_seed_effect_names_the_table(tmp_path):
-    data = rig_data("drum-pendulum")
-    data["seed_effects"]["friction-heating"] = {}
-    err = load_bad(tmp_path, data)
-    expect_error(err, err.source, "seed_effects.friction-heating", "unknown effect")
-
-
-def test_unknown_effect_parameter(tmp_path):
-    data = rig_data("brake-2dof")
-    data["effects"]["accel-sign"] = {"ampl": 0.15}
-    err = load_bad(tmp_path, data)
-    expect_error(err, err.source, "effects.accel-sign.ampl", "unknown parameter", "amp")
-
-
-def test_parameter_of_the_same_effect_on_another_rig(tmp_path):
-    data = rig_data("brake-2dof")
-    data["effects"]["bearing-friction"] = {"mu1": 0.05}  # mu1 is the drum's key; brake has torque
-    err = load_bad(tmp_path, data)
-    expect_error(err, err.source, "effects.bearing-friction.mu1", "unknown parameter", "torque")
-
-
-def test_effect_that_does_not_apply_to_the_rig(tmp_path):
-    data = rig_data("belt-ndof")
-    data["effects"]["bearing-friction"] = {"torque": 0.003}
-    err = load_bad(tmp_path, data)
-    expect_error(err, err.source, "effects.bearing-friction", "does not apply to belt-ndof")
-
-
-def test_effect_errors_never_fall_back_to_root(tmp_path):
-    data = rig_data("brake-2dof")
-    data["seed_effects"]["geometric"] = {"weigth": 1.0}
+@pytest.mark.parametrize(("rig", "table", "effect", "params", "field", "fragments"), [
+    pytest.param("brake-2dof", "effects", "stick-slip", {"gain": 1.0}, "effects.stick-slip",
+                 ("unknown effect", "stick-time"), id="unknown_effect_names_the_effect_field"),
+    pytest.param("drum-pendulum", "seed_effects", "friction-heating", {}, "seed_effects.friction-heating",
+                 ("unknown effect",), id="unknown_seed_effect_names_the_table"),
+    pytest.param("brake-2dof", "effects", "accel-sign", {"ampl": 0.15}, "effects.accel-sign.ampl",
+                 ("unknown parameter", "amp"), id="unknown_effect_parameter"),
+    # mu1 is the drum's key; brake has torque
+    pytest.param("brake-2dof", "effects", "bearing-friction", {"mu1": 0.05}, "effects.bearing-friction.mu1",
+                 ("unknown parameter", "torque"), id="parameter_of_the_same_effect_on_another_rig"),
+    pytest.param("belt-ndof", "effects", "bearing-friction", {"torque": 0.003}, "effects.bearing-friction",
+                 ("does not apply to belt-ndof",), id="effect_that_does_not_apply_to_the_rig"),
+    pytest.param("brake-2dof", "seed_effects", "geometric", {"weigth": 1.0}, "seed_effects.geometric.weigth",
+                 ("unknown parameter",), id="effect_errors_never_fall_back_to_root"),
+])
+def test_bad_effect_names_its_field(tmp_path, rig, table, effect, params, field, fragments):
+    data = rig_data(rig)
+    data[table][effect] = params
     err = load_bad(tmp_path, data)
     assert "(root)" not in str(err)
-    expect_error(err, err.source, "seed_effects.geometric.weigth", "unknown parameter")
+    expect_error(err, err.source, field, *fragments)
 
 
 # ---------------------------------------------------------------- bad files
@@ -277,24 +257,18 @@ def test_toml_syntax_error(tmp_path):
     path = tmp_path / "broken.toml"
     text = (CONFIG_DIR / "brake-2dof.toml").read_text().replace("M_kg = 0.14027", "M_kg = 0.14027 kg")
     path.write_text(text)
-    with pytest.raises(InputError) as info:
-        load_rig(path)
-    expect_error(info.value, str(path), "(syntax)", "line")
+    expect_read_error(load_rig, path, "(syntax)", "line")
 
 
 def test_missing_file(tmp_path):
     path = tmp_path / "absent.toml"
-    with pytest.raises(InputError) as info:
-        load_rig(path)
-    expect_error(info.value, str(path), "(file)", "No such file")
+    expect_read_error(load_rig, path, "(file)", "No such file")
 
 
 def test_directory_instead_of_file(tmp_path):
     path = tmp_path / "dir.toml"
     path.mkdir()
-    with pytest.raises(InputError) as info:
-        load_rig(path)
-    expect_error(info.value, str(path), "(file)")
+    expect_read_error(load_rig, path, "(file)")
 
 
 def test_unknown_rig_id_lists_the_known_ones():

@@ -87,22 +87,24 @@ def test_belt_speed_lag_offset_on_the_seed_ramp():
     np.testing.assert_allclose(lag, -tau * slope * (1 - np.exp(-r.t / tau)), rtol=1e-6, atol=1e-12)
 
 
-def test_velocity_strengthening_adds_D_v_to_mu():
-    D = 0.8
-    r = run("brake-2dof", [("velocity-strengthening", {"D": D})])
+def brake_with_law(effect: str, params: dict):
+    """The brake run with one effect, its relative velocity, and the config's friction law mu at that velocity."""
+    r = run("brake-2dof", [(effect, params)])
     cfg = load_rig("brake-2dof").friction
     v = r.truth["v_rel"]
-    base_mu = friction.mu_brake(v, cfg.mu0, cfg.gamma_s_per_m, cfg.alpha_s_per_m, cfg.beta)
+    return r, v, friction.mu_brake(v, cfg.mu0, cfg.gamma_s_per_m, cfg.alpha_s_per_m, cfg.beta)
+
+
+def test_velocity_strengthening_adds_D_v_to_mu():
+    D = 0.8
+    r, v, base_mu = brake_with_law("velocity-strengthening", {"D": D})
     np.testing.assert_allclose(r.truth["mu"] - base_mu, D * v, atol=1e-12)
 
 
 def test_accel_sign_branches_follow_the_relative_acceleration():
     """mu = mu_law (1 + amp w), w = +1 while |v_rel| grows, -1 while it shrinks (Filippov in between)."""
     amp = 0.15
-    r = run("brake-2dof", [("accel-sign", {"amp": amp})])
-    cfg = load_rig("brake-2dof").friction
-    v = r.truth["v_rel"]
-    law = friction.mu_brake(v, cfg.mu0, cfg.gamma_s_per_m, cfg.alpha_s_per_m, cfg.beta)
+    r, v, law = brake_with_law("accel-sign", {"amp": amp})
     sliding = np.abs(v) > 0.02
     w = (r.truth["mu"][sliding] / law[sliding] - 1.0) / amp
     assert np.all(np.abs(w) <= 1 + 1e-9)

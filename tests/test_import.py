@@ -217,18 +217,24 @@ def test_tdms_float32_and_integer_channels_become_float64(tmp_path):
     np.testing.assert_array_equal(rec.channels["extra"], np.arange(N, dtype=float))
 
 
-def test_tdms_missing_required_channel(tmp_path):
+@pytest.mark.parametrize(("edit", "extra", "field", "fragment"), [
+    pytest.param({"vb": None}, [], "vb", "missing column required", id="missing_required_channel"),
+    pytest.param({}, [("run", "comment", ["ok"] * N)], "run/comment", "not numeric",
+                 id="string_channel_is_not_numeric"),
+    pytest.param({"t": None}, [], "t", "wf_increment", id="without_timing"),
+    pytest.param({"temp": slice(None, -5)}, [], "run/temp", f"{N - 5} samples, t has {N}",
+                 id="channels_of_different_lengths"),
+])
+def test_tdms_bad_channels(tmp_path, edit, extra, field, fragment):
+    """A channel removed (None) or cut (a slice), or an extra channel object: one error naming it."""
     cols = columns()
-    del cols["vb"]
-    src = write_tdms(tmp_path / "novb.tdms", cols)
-    expect_error(src, "brake-2dof", tmp_path / "o.h5", "vb", "missing column required")
-
-
-def test_tdms_string_channel_is_not_numeric(tmp_path):
-    cols = columns()
-    src = write_tdms(tmp_path / "str.tdms", cols,
-                     extra_objects=[ChannelObject("run", "comment", ["ok"] * N)])
-    expect_error(src, "brake-2dof", tmp_path / "o.h5", "run/comment", "not numeric")
+    for name, keep in edit.items():
+        if keep is None:
+            del cols[name]
+        else:
+            cols[name] = cols[name][keep]
+    src = write_tdms(tmp_path / "bad.tdms", cols, extra_objects=[ChannelObject(*o) for o in extra])
+    expect_error(src, "brake-2dof", tmp_path / "o.h5", field, fragment)
 
 
 @pytest.mark.parametrize(("name", "unit"), [("x1", "mm"), ("phi", "deg"), ("t", "ms"), ("vb", "rpm")])
@@ -237,20 +243,6 @@ def test_tdms_wrong_unit(tmp_path, name, unit):
     units = {"t": "s", **BRAKE_UNITS, name: unit}
     src = write_tdms(tmp_path / "u.tdms", cols, units)
     expect_error(src, "brake-2dof", tmp_path / "o.h5", name, repr(unit))
-
-
-def test_tdms_without_timing(tmp_path):
-    cols = columns()
-    del cols["t"]
-    src = write_tdms(tmp_path / "notime.tdms", cols)
-    expect_error(src, "brake-2dof", tmp_path / "o.h5", "t", "wf_increment")
-
-
-def test_tdms_channels_of_different_lengths(tmp_path):
-    cols = columns()
-    cols["temp"] = cols["temp"][:-5]
-    src = write_tdms(tmp_path / "short.tdms", cols)
-    expect_error(src, "brake-2dof", tmp_path / "o.h5", "run/temp", f"{N - 5} samples, t has {N}")
 
 
 def test_tdms_two_groups_are_ambiguous(tmp_path):

@@ -191,55 +191,57 @@ def test_ramp_table_of_an_in_memory_ramp():
 
 # ---------------------------------------------------------------- bad TOML ramps
 
+_BAD_TOML_RAMPS = [
+    pytest.param('start_m_per_s = 0.1\n[[segment]]\nkind = "linear"\nduration_s = 2.0\n',
+                 "segment[0].to_m_per_s", ("required", "linear"), id="linear_without_end_speed"),
+    pytest.param('start_m_per_s = 0.1\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n'
+                 '[[segment]]\nkind = "exponential"\nduration_s = 2.0\nto_m_per_s = 0.2\n',
+                 "segment[1].tau_s", ("required", "exponential"), id="exponential_without_tau_in_the_second_segment"),
+    pytest.param('start_m_per_s = 0.1\n[[segment]]\nkind = "sine"\nduration_s = 1.0\n',
+                 "segment[0].kind", ("'hold'", "'exponential'"), id="unknown_segment_kind"),
+    pytest.param('start_m_per_s = 0.1\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n'
+                 '[[segment]]\nkind = "hold"\nduraton_s = 1.0\n',
+                 "segment[1].duraton_s", ("Extra inputs",), id="unknown_key_in_a_segment"),
+    pytest.param('start_speed = 0.1\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n',
+                 "start_speed", ("Extra inputs",), id="unknown_top_level_key"),
+    pytest.param('[[segment]]\nkind = "hold"\nduration_s = 1.0\n',
+                 "start_m_per_s", ("seed",), id="no_start_speed_and_first_segment_not_seed"),
+    pytest.param("start_m_per_s = 0.1\n", "segment", ("Field required",), id="no_segments"),
+    pytest.param("start_m_per_s = 0.1\nsegment = []\n", "segment", ("at least 1",), id="empty_segment_list"),
+    pytest.param('[[segment]]\nkind = "seed"\nV0_m_per_s = 0.17\nTmax_s = 45.0\nduration_s = 50.0\n',
+                 "segment[0].duration_s", ("exceeds Tmax_s=45.0",), id="seed_segment_longer_than_tmax"),
+    pytest.param('start_m_per_s = 0.1\n[[segment]\nkind = "hold"\n',
+                 "(syntax)", ("line 2",), id="toml_syntax_error"),
+]
 
-def test_linear_without_end_speed(tmp_path):
-    path = write(tmp_path, "r.toml", 'start_m_per_s = 0.1\n[[segment]]\nkind = "linear"\nduration_s = 2.0\n')
-    expect_error(load_bad(path), str(path), "segment[0].to_m_per_s", "required", "linear")
 
-
-def test_exponential_without_tau_in_the_second_segment(tmp_path):
-    text = """start_m_per_s = 0.1
-[[segment]]
-kind = "hold"
-duration_s = 1.0
-[[segment]]
-kind = "exponential"
-duration_s = 2.0
-to_m_per_s = 0.2
-"""
+@pytest.mark.parametrize(("text", "field", "fragments"), _BAD_TOML_RAMPS)
+def test_bad_toml_ramp_is_one_error_naming_its_field(tmp_path, text, field, fragments):
     path = write(tmp_path, "r.toml", text)
-    expect_error(load_bad(path), str(path), "segment[1].tau_s", "required", "exponential")
+    expect_error(load_bad(path), str(path), field, *fragments)
 
 
 @pytest.mark.parametrize(
-    ("segment", "field"),
+    ("start", "segment", "field", "fragments"),
     [
-        ('kind = "hold"', "segment[0].duration_s"),
-        ('kind = "linear"\nto_m_per_s = 0.2', "segment[0].duration_s"),
-        ('kind = "exponential"\nduration_s = 1.0\ntau_s = 0.2', "segment[0].to_m_per_s"),
-        ('kind = "seed"\nV0_m_per_s = 0.1', "segment[0].Tmax_s"),
-        ('kind = "seed"\nTmax_s = 10.0', "segment[0].V0_m_per_s"),
+        # a key the segment's kind needs is missing
+        ("0.1", 'kind = "hold"', "segment[0].duration_s", ("required",)),
+        ("0.1", 'kind = "linear"\nto_m_per_s = 0.2', "segment[0].duration_s", ("required",)),
+        ("0.1", 'kind = "exponential"\nduration_s = 1.0\ntau_s = 0.2', "segment[0].to_m_per_s", ("required",)),
+        ("0.1", 'kind = "seed"\nV0_m_per_s = 0.1', "segment[0].Tmax_s", ("required",)),
+        ("0.1", 'kind = "seed"\nTmax_s = 10.0', "segment[0].V0_m_per_s", ("required",)),
+        # a rate-and-state protocol (velocity steps, slide-hold-slide) missing a key or with a bad value
+        ("1e-5", 'kind = "velocity-steps"\nslip_m = 1e-4', "segment[0].speeds_m_per_s", ()),
+        ("1e-5", 'kind = "velocity-steps"\nspeeds_m_per_s = [1e-5, 0.0]\nslip_m = 1e-4',
+         "segment[0].speeds_m_per_s[1]", ()),
+        ("1e-5", 'kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nslip_m = 1e-4\nholds_s = [3, -1]',
+         "segment[0].holds_s[1]", ()),
+        ("1e-5", 'kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nholds_s = [3]', "segment[0].slip_m", ()),
     ],
 )
-def test_missing_key_for_the_segment_kind(tmp_path, segment, field):
-    path = write(tmp_path, "r.toml", f"start_m_per_s = 0.1\n[[segment]]\n{segment}\n")
-    expect_error(load_bad(path), str(path), field, "required")
-
-
-def test_unknown_segment_kind(tmp_path):
-    path = write(tmp_path, "r.toml", 'start_m_per_s = 0.1\n[[segment]]\nkind = "sine"\nduration_s = 1.0\n')
-    expect_error(load_bad(path), str(path), "segment[0].kind", "'hold'", "'exponential'")
-
-
-def test_unknown_key_in_a_segment(tmp_path):
-    text = 'start_m_per_s = 0.1\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n[[segment]]\nkind = "hold"\nduraton_s = 1.0\n'
-    path = write(tmp_path, "r.toml", text)
-    expect_error(load_bad(path), str(path), "segment[1].duraton_s", "Extra inputs")
-
-
-def test_unknown_top_level_key(tmp_path):
-    path = write(tmp_path, "r.toml", 'start_speed = 0.1\n[[segment]]\nkind = "hold"\nduration_s = 1.0\n')
-    expect_error(load_bad(path), str(path), "start_speed", "Extra inputs")
+def test_a_bad_segment_is_one_error_naming_its_field(tmp_path, start, segment, field, fragments):
+    path = write(tmp_path, "r.toml", f"start_m_per_s = {start}\n[[segment]]\n{segment}\n")
+    expect_error(load_bad(path), str(path), field, *fragments)
 
 
 @pytest.mark.parametrize(
@@ -255,29 +257,6 @@ def test_negative_or_nan_target_speed(tmp_path):
         path = write(tmp_path, "r.toml",
                      f'start_m_per_s = 0.1\n[[segment]]\nkind = "linear"\nduration_s = 1.0\nto_m_per_s = {value}\n')
         expect_error(load_bad(path), str(path), "segment[0].to_m_per_s", fragment)
-
-
-def test_no_start_speed_and_first_segment_not_seed(tmp_path):
-    path = write(tmp_path, "r.toml", '[[segment]]\nkind = "hold"\nduration_s = 1.0\n')
-    expect_error(load_bad(path), str(path), "start_m_per_s", "seed")
-
-
-def test_no_segments(tmp_path):
-    path = write(tmp_path, "r.toml", "start_m_per_s = 0.1\n")
-    expect_error(load_bad(path), str(path), "segment", "Field required")
-    path = write(tmp_path, "r2.toml", "start_m_per_s = 0.1\nsegment = []\n")
-    expect_error(load_bad(path), str(path), "segment", "at least 1")
-
-
-def test_seed_segment_longer_than_tmax(tmp_path):
-    text = '[[segment]]\nkind = "seed"\nV0_m_per_s = 0.17\nTmax_s = 45.0\nduration_s = 50.0\n'
-    path = write(tmp_path, "r.toml", text)
-    expect_error(load_bad(path), str(path), "segment[0].duration_s", "exceeds Tmax_s=45.0")
-
-
-def test_toml_syntax_error(tmp_path):
-    path = write(tmp_path, "r.toml", 'start_m_per_s = 0.1\n[[segment]\nkind = "hold"\n')
-    expect_error(load_bad(path), str(path), "(syntax)", "line 2")
 
 
 def test_missing_ramp_file(tmp_path):
@@ -351,28 +330,19 @@ def test_exactly_at_the_acceleration_limit_passes():
     assert check_limits(arr(0, 2), arr(0.0, 1.0), 1.0, 0.5, "src") is None
 
 
-def test_over_speed():
+@pytest.mark.parametrize(("rt", "rv", "max_speed", "max_accel", "src", "field", "fragments"), [
+    pytest.param((0, 1, 3), (0.1, 0.2, 0.6), 0.5, 10.0, "prog.toml", "speed", ("0.6 m/s", "t=3 s", "0.5 m/s"),
+                 id="over_speed"),
+    pytest.param((0, 1), (0.1, -0.01), 0.5, 10.0, "prog.toml", "speed", ("negative",), id="negative_speed"),
+    pytest.param((0, 1, 1.5), (0.1, 0.2, 0.5), 1.0, 0.5, "prog.toml", "acceleration",
+                 ("0.6 m/s^2", "t=1 s", "0.5 m/s^2"), id="over_acceleration_names_where"),
+    pytest.param((0, 0.1), (0.3, 0.0), 1.0, 0.5, "src", "acceleration", ("3 m/s^2",),
+                 id="deceleration_counts_as_acceleration"),
+])
+def test_programme_over_the_limits_is_refused(rt, rv, max_speed, max_accel, src, field, fragments):
     with pytest.raises(InputError) as info:
-        check_limits(arr(0, 1, 3), arr(0.1, 0.2, 0.6), 0.5, 10.0, "prog.toml")
-    expect_error(info.value, "prog.toml", "speed", "0.6 m/s", "t=3 s", "0.5 m/s")
-
-
-def test_negative_speed():
-    with pytest.raises(InputError) as info:
-        check_limits(arr(0, 1), arr(0.1, -0.01), 0.5, 10.0, "prog.toml")
-    expect_error(info.value, "prog.toml", "speed", "negative")
-
-
-def test_over_acceleration_names_where():
-    with pytest.raises(InputError) as info:
-        check_limits(arr(0, 1, 1.5), arr(0.1, 0.2, 0.5), 1.0, 0.5, "prog.toml")
-    expect_error(info.value, "prog.toml", "acceleration", "0.6 m/s^2", "t=1 s", "0.5 m/s^2")
-
-
-def test_deceleration_counts_as_acceleration():
-    with pytest.raises(InputError) as info:
-        check_limits(arr(0, 0.1), arr(0.3, 0.0), 1.0, 0.5, "src")
-    expect_error(info.value, "src", "acceleration", "3 m/s^2")
+        check_limits(arr(*rt), arr(*rv), max_speed, max_accel, src)
+    expect_error(info.value, src, field, *fragments)
 
 
 def test_step_is_infinite_acceleration(tmp_path):
@@ -438,15 +408,3 @@ def test_slide_hold_slide_stops_for_each_hold_and_slides_between():
     np.testing.assert_allclose(slides, 20.0, rtol=1e-12)  # 200 um at 10 um/s, five times
     assert len(slides) == 5
     check_limits(rt, rv, 1.0, 1.0, "shs")  # 1e-5 m/s in 10 ms: 1e-3 m/s^2
-
-
-@pytest.mark.parametrize("body, field", [
-    ('kind = "velocity-steps"\nslip_m = 1e-4', "segment[0].speeds_m_per_s"),
-    ('kind = "velocity-steps"\nspeeds_m_per_s = [1e-5, 0.0]\nslip_m = 1e-4', "segment[0].speeds_m_per_s[1]"),
-    ('kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nslip_m = 1e-4\nholds_s = [3, -1]', "segment[0].holds_s[1]"),
-    ('kind = "slide-hold-slide"\nto_m_per_s = 1e-5\nholds_s = [3]', "segment[0].slip_m"),
-])
-def test_a_bad_protocol_is_one_error_naming_its_field(tmp_path, body, field):
-    path = write(tmp_path, "bad.toml", f"start_m_per_s = 1e-5\n[[segment]]\n{body}\n")
-    err = load_bad(path)
-    assert err.field == field, str(err)

@@ -11,6 +11,7 @@ from typing import get_args
 
 import numpy as np
 import pytest
+from helpers import brake_on_serial_stream
 
 from daq.config import (
     CanBus,
@@ -85,10 +86,7 @@ def test_every_channel_flows_and_the_motor_drives(rig, tmp_path):
 
 @pytest.mark.slow
 def test_brake_alternative_wiring_serial_stream(tmp_path):
-    data = load_rig("brake-2dof").model_dump(mode="json", exclude_none=True)
-    data["instruments"]["can"]["enabled"] = False
-    data["instruments"]["laser_serial"]["enabled"] = True
-    cfg = parse_rig(data, "test")
+    cfg = brake_on_serial_stream()
     with SimulatedHardware(cfg, tmp_path) as hw:
         drivers = build_drivers(cfg, hw.endpoints())
         assert set(drivers.sources) == {"laser_serial", "thermocouple"}

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
@@ -72,6 +73,13 @@ class SimRig(ABC):
     def tail(self, s: np.ndarray) -> None:
         s[self.n_mech + TAIL.TEMP] = self.e[E.T_AMB]
 
+    def rest_state(self, n_state: int, v_drive: float) -> np.ndarray:
+        """A state of ``n_state`` zeros but for the drive already at ``v_drive`` and the contact at ambient."""
+        s = np.zeros(n_state)
+        s[self.n_mech + TAIL.VLAG] = v_drive
+        self.tail(s)
+        return s
+
     def truth(self, c: Chunk) -> dict[str, np.ndarray]:
         """Ground truth the instruments cannot see (friction force, normal load, mu, ...)."""
         a = c.aux
@@ -88,8 +96,19 @@ class SimRig(ABC):
         }
 
 
-class BrakeSim(SimRig):
+class CompiledSim(SimRig):
+    """A rig integrated by the compiled RK4 of its physics module (``physics``): no extra outputs."""
+
+    physics: ModuleType
+
+    def advance(self, s0, t0, dt, n_sub, n_out, rt, rv) -> Chunk:
+        st, ax = (self.rk4 or _rk4(self.physics))(s0, t0, dt, n_sub, n_out, self.p, self.e, rt, rv)
+        return Chunk(st, ax, {})
+
+
+class BrakeSim(CompiledSim):
     rig_id = "brake-2dof"
+    physics = brake2dof
     n_mech = brake2dof.N_MECH
     cfg: BrakeRig
 
@@ -108,15 +127,9 @@ class BrakeSim(SimRig):
 
     def initial_state(self, v_drive: float) -> np.ndarray:
         """At rest at the friction-free static equilibrium, on a belt already at speed."""
-        s = np.zeros(brake2dof.N_STATE)
+        s = self.rest_state(brake2dof.N_STATE, v_drive)
         s[0], s[2] = brake2dof.equilibrium(self.p, self.e[E.GEO_WEIGHT])
-        s[self.n_mech + TAIL.VLAG] = v_drive
-        self.tail(s)
         return s
-
-    def advance(self, s0, t0, dt, n_sub, n_out, rt, rv) -> Chunk:
-        st, ax = (self.rk4 or _rk4(brake2dof))(s0, t0, dt, n_sub, n_out, self.p, self.e, rt, rv)
-        return Chunk(st, ax, {})
 
     def channels(self, t, c):
         r = self.p[brake2dof.P.r]
@@ -136,8 +149,9 @@ class BrakeSim(SimRig):
                 "springs_only": brake2dof.linear_modes(self.p, 0.0, "origin").tolist()}
 
 
-class DrumSim(SimRig):
+class DrumSim(CompiledSim):
     rig_id = "drum-pendulum"
+    physics = drum
     n_mech = drum.N_MECH
     cfg: DrumRig
 
@@ -151,14 +165,7 @@ class DrumSim(SimRig):
         return p
 
     def initial_state(self, v_drive: float) -> np.ndarray:
-        s = np.zeros(drum.N_STATE)
-        s[self.n_mech + TAIL.VLAG] = v_drive
-        self.tail(s)
-        return s
-
-    def advance(self, s0, t0, dt, n_sub, n_out, rt, rv) -> Chunk:
-        st, ax = (self.rk4 or _rk4(drum))(s0, t0, dt, n_sub, n_out, self.p, self.e, rt, rv)
-        return Chunk(st, ax, {})
+        return self.rest_state(drum.N_STATE, v_drive)
 
     def channels(self, t, c):
         P = drum.P
@@ -206,10 +213,8 @@ class BeltSim(SimRig):
 
     def initial_state(self, v_drive: float) -> np.ndarray:
         """Masses at rest at the unstretched position, slipping on a belt already at speed."""
-        s = np.zeros(beltndof.n_state(self.n))
-        s[self.n_mech + TAIL.VLAG] = v_drive
+        s = self.rest_state(beltndof.n_state(self.n), v_drive)
         self.hybrid = beltndof.new_hybrid(self.n, self.p[beltndof.P.F_S0], 1.0 if v_drive >= 0 else -1.0)
-        self.tail(s)
         if v_drive != 0.0 and self.e[E.RS_DC] > 0.0:  # rate-and-state: the state steady at the start's slip speed
             s[self.n_mech + TAIL.PSI] = math.log(self.e[E.RS_VREF] / abs(v_drive))
         return s

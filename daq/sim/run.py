@@ -59,40 +59,12 @@ def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[n
     h = 1.0 / rate / n_sub
     n_total = int(math.floor(duration * rate + 1e-9)) + 1
     sim = make_sim(cfg, e)
-    s = sim.initial_state(float(rv[0]))
     rt = np.ascontiguousarray(rt, dtype=float)
     rv = np.ascontiguousarray(rv, dtype=float)
-
-    chunks: list[Chunk] = []
-    per_chunk = max(2, int(CHUNK_S * rate)) if progress else n_total  # chunks only to report progress
-    done = 0
-    t0 = 0.0
-    while done < n_total:
-        n_out = min(per_chunk, n_total - done + (1 if done else 0))
-        c = sim.advance(s, t0, h, n_sub, n_out, rt, rv)
-        if done:  # the first sample of a continuation chunk repeats the last one
-            c = Chunk(c.states[1:], c.aux[1:], {k: v[1:] for k, v in c.extra.items()})
-        chunks.append(c)
-        done += len(c.states)
-        s = c.states[-1].copy()
-        t0 = (done - 1) / rate
-        if progress:
-            progress(min(t0, duration), duration)
-    if len(chunks) == 1:
-        chunk = chunks[0]
-    else:
-        chunk = Chunk(np.concatenate([c.states for c in chunks]), np.concatenate([c.aux for c in chunks]),
-                      {k: np.concatenate([c.extra[k] for c in chunks]) for k in chunks[0].extra})
+    chunk = _integrate(sim, rt, rv, rate, h, n_sub, n_total, duration, progress)
     t = np.arange(n_total) / rate
     true_ch = sim.channels(t, chunk)
-    rng = np.random.default_rng(seed)
-    channels: dict[str, np.ndarray] = {}
-    units: dict[str, str] = {}
-    for name, ccfg in cfg.channels.items():
-        if name not in true_ch:
-            continue  # e.g. x3 on a one-mass belt rig
-        channels[name] = measure(ccfg, t, true_ch[name], rng, noise=noise)
-        units[name] = ccfg.unit
+    channels, units = _measure_channels(cfg, t, true_ch, seed, noise)
     truth = sim.truth(chunk)
     truth.update({f"true_{k}": v for k, v in true_ch.items()})
     meta = {
@@ -113,3 +85,45 @@ def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[n
     if hasattr(sim, "n_events"):
         meta["stick_slip_events"] = int(getattr(sim, "n_events"))
     return Recording(cfg.rig, t, channels, units, meta, truth)
+
+
+def _integrate(sim, rt: np.ndarray, rv: np.ndarray, rate: float, h: float, n_sub: int, n_total: int,
+               duration: float, progress: Callable[[float, float], None] | None) -> Chunk:
+    """Advance the rig from rest on the belt's start speed through ``n_total`` output samples, as one chunk.
+
+    With ``progress`` the run goes in chunks of CHUNK_S simulated seconds (only to report progress).
+    """
+    s = sim.initial_state(float(rv[0]))
+    chunks: list[Chunk] = []
+    per_chunk = max(2, int(CHUNK_S * rate)) if progress else n_total  # chunks only to report progress
+    done = 0
+    t0 = 0.0
+    while done < n_total:
+        n_out = min(per_chunk, n_total - done + (1 if done else 0))
+        c = sim.advance(s, t0, h, n_sub, n_out, rt, rv)
+        if done:  # the first sample of a continuation chunk repeats the last one
+            c = Chunk(c.states[1:], c.aux[1:], {k: v[1:] for k, v in c.extra.items()})
+        chunks.append(c)
+        done += len(c.states)
+        s = c.states[-1].copy()
+        t0 = (done - 1) / rate
+        if progress:
+            progress(min(t0, duration), duration)
+    if len(chunks) == 1:
+        return chunks[0]
+    return Chunk(np.concatenate([c.states for c in chunks]), np.concatenate([c.aux for c in chunks]),
+                 {k: np.concatenate([c.extra[k] for c in chunks]) for k in chunks[0].extra})
+
+
+def _measure_channels(cfg: RigConfig, t: np.ndarray, true_ch: dict[str, np.ndarray], seed: int,
+                      noise: bool) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """The configured channels as the instruments read the simulated truth (noise from ``seed``), and units."""
+    rng = np.random.default_rng(seed)
+    channels: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    for name, ccfg in cfg.channels.items():
+        if name not in true_ch:
+            continue  # e.g. x3 on a one-mass belt rig
+        channels[name] = measure(ccfg, t, true_ch[name], rng, noise=noise)
+        units[name] = ccfg.unit
+    return channels, units

@@ -88,9 +88,44 @@ def poincare(run: BeltRun, mass: int = 0, skip_s: float | None = None, kmax: int
     lo, hi = np.quantile(v[steady_s], [0.01, 0.99])
     c = 0.5 * (lo + hi)
     sig_v = run.sigma_x[mass] / mech.x_unit * sg_gain(half, 1) / dtd
-    h = max(4.0 * sig_v, 0.05 * (hi - lo))
-    # Schmitt trigger: armed above c + h; a downward crossing of c counts once v then reaches c - h
-    # before it returns above c + h (noise around c gives one crossing, not several)
+    cross = _downward_crossings(v, c, max(4.0 * sig_v, 0.05 * (hi - lo)))
+    n = run.n
+    pts, ct = _section_points(xs, vs, t, cross)
+    steady = ct >= t[0] + skip
+    P = pts[steady]
+    scale, tol = _scale_and_tolerance(run, xs[:, steady_s], vs[:, steady_s], half, dtd)
+    dist, period = _return_distances(P, scale, tol, kmax)
+    if hi - lo < 8.0 * sig_v:
+        cls = "no oscillation (steady sliding or rest)"
+        period = None
+    elif P.shape[0] < 6:
+        cls = "too few crossings"
+        period = None
+    elif period is None:
+        cls = "irregular"
+    else:
+        cls = f"period-{period}"
+    period_s = float(np.median(ct[steady][period:] - ct[steady][:-period])) if period and P.shape[0] > period else None
+    stuck = np.abs(vs[mass] - run.vb / mech.v_unit) < 4.0 * sig_v + 0.01 * np.abs(run.vb / mech.v_unit)
+    names = [f"x{i + 1}" for i in range(n)] + [f"v{i + 1}" for i in range(n)]
+    res = PoincareResult(
+        path=run.source, n_masses=n, mass=mass + 1,
+        section=f"downward crossings of x'{mass + 1} = c (c = mid-range of x'{mass + 1} over the steady part); "
+                "coordinates x_i = K X_i / F0, v_i = dx_i/dt in t = tau / sqrt(M/K)",
+        level=float(c), belt_speed_s=float(np.median(run.vb) / mech.v_unit), skip_s=skip,
+        points_total=int(cross.size), points_steady=int(P.shape[0]), classification=cls, period=period,
+        period_s=period_s, distance_by_k=dist, tolerance=tol, distinct_points=_distinct_points(P / scale, tol),
+        section_points={"t": ct.tolist(), **{nm: pts[:, i].tolist() for i, nm in enumerate(names)}},
+        stick_fraction=float(np.mean(stuck[steady_s])))
+    return PoincareAnalysis(res, t, xs, vs, ct, pts, steady)
+
+
+def _downward_crossings(v: np.ndarray, c: float, h: float) -> np.ndarray:
+    """Fractional sample indices where ``v`` crosses ``c`` downward, by a Schmitt trigger of hysteresis ``h``.
+
+    Armed above c + h; a downward crossing of c counts once v then reaches c - h before it
+    returns above c + h (noise around c gives one crossing, not several).
+    """
     cross = []
     armed = False
     cand = None
@@ -102,28 +137,38 @@ def poincare(run: BeltRun, mass: int = 0, skip_s: float | None = None, kmax: int
         if cand is not None and v[j] < c - h:
             cross.append(cand)
             armed, cand = False, None
-    cross = np.asarray(cross, dtype=float)
-    n = run.n
-    if cross.size:
-        i0 = np.floor(cross).astype(int)
-        fr = cross - i0
-        i1 = np.minimum(i0 + 1, t.size - 1)
-        pts = np.vstack([xs[:, i0] * (1 - fr) + xs[:, i1] * fr, vs[:, i0] * (1 - fr) + vs[:, i1] * fr]).T
-        ct = t[i0] * (1 - fr) + t[i1] * fr
-    else:
-        pts = np.zeros((0, 2 * n))
-        ct = np.zeros(0)
-    steady = ct >= t[0] + skip
-    P = pts[steady]
-    # scale of each coordinate, and the noise of a section point in it
-    rng_x = np.ptp(xs[:, steady_s], axis=1)
-    rng_v = np.ptp(vs[:, steady_s], axis=1)
-    scale = np.concatenate([rng_x, rng_v])
+    return np.asarray(cross, dtype=float)
+
+
+def _section_points(xs: np.ndarray, vs: np.ndarray, t: np.ndarray, cross: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Section points (m, 2n) = positions and velocities of all masses at the crossings (linear
+    interpolation between samples), and the crossing times."""
+    if not cross.size:
+        return np.zeros((0, 2 * xs.shape[0])), np.zeros(0)
+    i0 = np.floor(cross).astype(int)
+    fr = cross - i0
+    i1 = np.minimum(i0 + 1, t.size - 1)
+    pts = np.vstack([xs[:, i0] * (1 - fr) + xs[:, i1] * fr, vs[:, i0] * (1 - fr) + vs[:, i1] * fr]).T
+    return pts, t[i0] * (1 - fr) + t[i1] * fr
+
+
+def _scale_and_tolerance(run: BeltRun, xs_steady: np.ndarray, vs_steady: np.ndarray, half: int,
+                         dtd: float) -> tuple[np.ndarray, float]:
+    """Range of each section coordinate over the steady part, and the tolerance of a repeat in those
+    units: 8 x the largest scaled noise of a section point, at least 0.01."""
+    mech = run.mech
+    scale = np.concatenate([np.ptp(xs_steady, axis=1), np.ptp(vs_steady, axis=1)])
     scale = np.where(scale > 0, scale, 1.0)
     sig_x = run.sigma_x / mech.x_unit * sg_gain(half, 0)
     sig_vv = run.sigma_x / mech.x_unit * sg_gain(half, 1) / dtd
     noise = np.concatenate([sig_x, sig_vv]) / scale
-    tol = max(0.01, 8.0 * float(np.max(noise)))
+    return scale, max(0.01, 8.0 * float(np.max(noise)))
+
+
+def _return_distances(P: np.ndarray, scale: np.ndarray, tol: float, kmax: int) -> tuple[dict[str, float], int | None]:
+    """d_k (90th percentile of the scaled max |P_{n+k} - P_n|) for k = 1..kmax, and the smallest k with
+    d_k below the tolerance (None: no such k)."""
     dist: dict[str, float] = {}
     period = None
     for k in range(1, kmax + 1):
@@ -133,31 +178,13 @@ def poincare(run: BeltRun, mass: int = 0, skip_s: float | None = None, kmax: int
         dist[str(k)] = float(np.quantile(d, 0.9))
         if period is None and dist[str(k)] < tol:
             period = k
-    if hi - lo < 8.0 * sig_v:
-        cls = "no oscillation (steady sliding or rest)"
-        period = None
-    elif P.shape[0] < 6:
-        cls = "too few crossings"
-        period = None
-    elif period is None:
-        cls = "irregular"
-    else:
-        cls = f"period-{period}"
-    # distinct points: greedy clustering at the tolerance
+    return dist, period
+
+
+def _distinct_points(scaled: np.ndarray, tol: float) -> int:
+    """Number of clusters of (scaled) section points at the tolerance, by greedy clustering."""
     centres: list[np.ndarray] = []
-    for p in P / scale:
+    for p in scaled:
         if not any(np.max(np.abs(p - q)) < tol for q in centres):
             centres.append(p)
-    period_s = float(np.median(ct[steady][period:] - ct[steady][:-period])) if period and P.shape[0] > period else None
-    stuck = np.abs(vs[mass] - run.vb / mech.v_unit) < 4.0 * sig_v + 0.01 * np.abs(run.vb / mech.v_unit)
-    names = [f"x{i + 1}" for i in range(n)] + [f"v{i + 1}" for i in range(n)]
-    res = PoincareResult(
-        path=run.source, n_masses=n, mass=mass + 1,
-        section=f"downward crossings of x'{mass + 1} = c (c = mid-range of x'{mass + 1} over the steady part); "
-                "coordinates x_i = K X_i / F0, v_i = dx_i/dt in t = tau / sqrt(M/K)",
-        level=float(c), belt_speed_s=float(np.median(run.vb) / mech.v_unit), skip_s=skip,
-        points_total=int(cross.size), points_steady=int(P.shape[0]), classification=cls, period=period,
-        period_s=period_s, distance_by_k=dist, tolerance=tol, distinct_points=len(centres),
-        section_points={"t": ct.tolist(), **{nm: pts[:, i].tolist() for i, nm in enumerate(names)}},
-        stick_fraction=float(np.mean(stuck[steady_s])))
-    return PoincareAnalysis(res, t, xs, vs, ct, pts, steady)
+    return len(centres)

@@ -104,7 +104,6 @@ def slip_windows(run: BeltRun, sticks: list[list[Stick]], run_index: int = 0, ma
     """Cut a recording into slip windows (see SlipWindow); returns them and counts of what was left out."""
     mech = run.mech
     n = run.n
-    travel = run.belt_travel
     half = 5
     dt = 1.0 / run.rate
     xs = savgol(run.x, half)
@@ -131,61 +130,85 @@ def slip_windows(run: BeltRun, sticks: list[list[Stick]], run_index: int = 0, ma
             if j1 - j0 > max_len:
                 skipped["too_long"] += 1
                 continue
-            cut = j1
-            recent = False
-            for o in range(n):
-                if o == i:
-                    continue
-                for so in sticks[o]:
-                    if j0 < so.end <= j1 and not so.open_end:
-                        cut = min(cut, so.end - OTHER_BREAK_MARGIN)
-                    # a neighbour that broke away just before j0 may still be on its drop branch, which
-                    # the window cannot start it on: leave such windows out
-                    if j0 - pre - OTHER_BREAK_MARGIN <= so.end <= j0 and not so.open_end:
-                        recent = True
-            if recent:
-                skipped["neighbour_just_broke"] += 1
+            j1, why = _cut_before_other_breaks(sticks, n, i, st, j0, j1, pre)
+            if why:
+                skipped[why] += 1
                 continue
-            if cut < st.end + 10:  # not even the start of the slip left
-                skipped["other_mass_breaks"] += 1
-                continue
-            j1 = cut
-            s0 = np.zeros(beltndof.n_state(n))
-            modes = np.full(n, beltndof.SLIP)
-            sdir = np.ones(n)
-            for o in range(n):
-                so = st if o == i else _stuck_at(sticks[o], j0, 2)
-                if so is not None:
-                    s0[o] = _stick_line(run, so, travel, 4 if so is st else 2) + travel[j0]
-                    s0[n + o] = run.vb[j0]
-                    modes[o] = beltndof.STICK
-                else:
-                    s0[o] = xs[o, j0]
-                    s0[n + o] = vs[o, j0]
-                    sdir[o] = 1.0 if run.vb[j0] - vs[o, j0] >= 0 else -1.0
+            s0, modes, sdir = _start_state(run, sticks, i, st, j0, xs, vs)
             free = np.flatnonzero(modes == beltndof.SLIP)
-            tail = 2 * n
-            s0[tail + TAIL.TEMP] = run.cfg.contact.t_ambient_C
-            s0[tail + TAIL.VLAG] = run.vb[j0]
-            s0[tail + TAIL.POS] = travel[j0]
             a, b = max(j0 - 1, 0), min(j1 + 2, run.t.size)
             rt = np.ascontiguousarray(run.t[a:b])
             rv = np.ascontiguousarray(run.vb[a:b])
             fs_guess = float(need[i][st.end - 1])
-            # mean load rate while stuck [N/s]: slope of the needed force over the stick (the rate the static
-            # law reads is the one at the break-away, from the fitted window: see belt_law._load_rate)
-            F0 = mech.normal_force_N
-            seg = slice(st.start + 1, max(st.start + 3, st.end - 2))
-            tt = run.t[seg]
-            d_mean = float(np.polyfit(tt, need[i][seg] * F0, 1)[0]) if tt.size >= 3 else float("nan")
             # bounds of f_s: the detected stick end is late, so f_s < guess
             fs_lo = max(0.05, 0.75 * fs_guess)
             fs_hi = max(fs_lo + 0.1, 1.1 * fs_guess)
             out.append(SlipWindow(run_index, i, st, j0, j1, s0, modes, sdir, fs_guess, fs_lo, fs_hi,
                                   np.abs(need[i][j0:min(st.end + 3, j1 + 1)]), True,
                                   run.x[:, j0:j1 + 1].copy(), run.sigma_x.copy(), free, s0[n + free].copy(),
-                                  rt, rv, d_mean))
+                                  rt, rv, _mean_load_rate(run, st, need[i])))
     return out, skipped
+
+
+def _cut_before_other_breaks(sticks: list[list[Stick]], n: int, i: int, st: Stick, j0: int, j1: int, pre: int
+                             ) -> tuple[int, str | None]:
+    """The window's end, cut OTHER_BREAK_MARGIN samples before any other mass breaks away inside it;
+    or the reason (a key of slip_windows' counts) to leave the window out."""
+    cut = j1
+    recent = False
+    for o in range(n):
+        if o == i:
+            continue
+        for so in sticks[o]:
+            if j0 < so.end <= j1 and not so.open_end:
+                cut = min(cut, so.end - OTHER_BREAK_MARGIN)
+            # a neighbour that broke away just before j0 may still be on its drop branch, which
+            # the window cannot start it on: leave such windows out
+            if j0 - pre - OTHER_BREAK_MARGIN <= so.end <= j0 and not so.open_end:
+                recent = True
+    if recent:
+        return cut, "neighbour_just_broke"
+    if cut < st.end + 10:  # not even the start of the slip left
+        return cut, "other_mass_breaks"
+    return cut, None
+
+
+def _start_state(run: BeltRun, sticks: list[list[Stick]], i: int, st: Stick, j0: int, xs: np.ndarray,
+                 vs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Full state (SI), STICK/SLIP modes and slip directions of every mass at the window's start j0.
+
+    Stuck masses (the window's own, stuck on ``st``) sit on their stick line at belt speed; the
+    others take the Savitzky-Golay position and velocity. The tail starts at ambient temperature
+    with the belt's speed and travel.
+    """
+    n = run.n
+    travel = run.belt_travel
+    s0 = np.zeros(beltndof.n_state(n))
+    modes = np.full(n, beltndof.SLIP)
+    sdir = np.ones(n)
+    for o in range(n):
+        so = st if o == i else _stuck_at(sticks[o], j0, 2)
+        if so is not None:
+            s0[o] = _stick_line(run, so, travel, 4 if so is st else 2) + travel[j0]
+            s0[n + o] = run.vb[j0]
+            modes[o] = beltndof.STICK
+        else:
+            s0[o] = xs[o, j0]
+            s0[n + o] = vs[o, j0]
+            sdir[o] = 1.0 if run.vb[j0] - vs[o, j0] >= 0 else -1.0
+    tail = 2 * n
+    s0[tail + TAIL.TEMP] = run.cfg.contact.t_ambient_C
+    s0[tail + TAIL.VLAG] = run.vb[j0]
+    s0[tail + TAIL.POS] = travel[j0]
+    return s0, modes, sdir
+
+
+def _mean_load_rate(run: BeltRun, st: Stick, need: np.ndarray) -> float:
+    """Mean load rate while stuck [N/s]: slope of the needed force over the stick (the rate the static
+    law reads is the one at the break-away, from the fitted window: see belt_law._load_rate)."""
+    seg = slice(st.start + 1, max(st.start + 3, st.end - 2))
+    tt = run.t[seg]
+    return float(np.polyfit(tt, need[seg] * run.mech.normal_force_N, 1)[0]) if tt.size >= 3 else float("nan")
 
 
 class WindowSimulator:

@@ -194,85 +194,9 @@ def detect_transitions(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None = N
     period = np.append(np.diff(tc), np.nan)
     mism = np.vstack([cycle_mismatch(amp, period, n, cfg.median_cycles) for n in range(1, cfg.max_period + 1)]) \
         if tc.size else np.zeros((cfg.max_period, 0))
-    names = {1: "quasi-steady", 2: "period-doubling", 3: "period-3", 4: "period-4"}
-    labels = []
-    for k in range(tc.size):
-        lab = "irregular"
-        for n in range(1, cfg.max_period + 1):
-            if np.isfinite(mism[n - 1, k]) and mism[n - 1, k] < cfg.mismatch_tol:
-                lab = names[n]
-                break
-        else:
-            if not np.isfinite(mism[:, k]).any():
-                lab = None  # too close to an end to judge: takes its neighbour's label
-        labels.append(lab)
-    # cycles at the ends that cannot be judged take the nearest judged label
-    judged = [i for i, lab in enumerate(labels) if lab is not None]
-    if judged:
-        for i in range(len(labels)):
-            if labels[i] is None:
-                labels[i] = labels[min(judged, key=lambda j: abs(j - i))]
-    labels = _merge_short([str(lab) for lab in labels], cfg.min_cycles)
-
-    # quiet gaps: no cycle for quiet_gap_periods local periods (and the run's ends beyond the last cycle)
-    local_T = _rolling_median(period, 9) if tc.size else np.empty(0)
-    segs: list[TransitionSegment] = []
+    labels = _cycle_labels(mism, cfg)
     t0, t1 = float(t[0]), float(t[-1])
-
-    def add_regime(kind: str, a: float, b: float, idx: np.ndarray) -> None:
-        if b <= a:
-            return
-        seg = TransitionSegment(track="regime", kind=kind, start_s=a, end_s=b, n_cycles=int(idx.size))
-        if idx.size:
-            per = period[idx]
-            per = per[np.isfinite(per)]
-            seg.period_s = float(np.median(per)) if per.size else None
-            for n, name in ((1, "mismatch_p1"), (2, "mismatch_p2")):
-                if n <= cfg.max_period:
-                    v = mism[n - 1, idx]
-                    v = v[np.isfinite(v)]
-                    setattr(seg, name, float(np.median(v)) if v.size else None)
-        segs.append(seg)
-
-    if tc.size < 3:
-        add_regime("quiet", t0, t1, np.arange(tc.size))
-    else:
-        # group cycles into runs of equal label, split at quiet gaps
-        gap_after = np.zeros(tc.size, bool)
-        gap_after[:-1] = np.diff(tc) > np.maximum(cfg.quiet_gap_periods * np.nan_to_num(local_T[:-1], nan=np.inf),
-                                                  cfg.quiet_min_s)
-        start_i = 0
-        cur_start = t0
-        first_T = float(np.nanmedian(period[: min(9, period.size)]))
-        if tc[0] - t0 > max(cfg.quiet_gap_periods * first_T, cfg.quiet_min_s):
-            add_regime("quiet", t0, float(tc[0] - 0.5 * first_T), np.empty(0, int))
-            cur_start = float(tc[0] - 0.5 * first_T)
-        for i in range(1, tc.size + 1):
-            end_run = i == tc.size or labels[i] != labels[start_i] or gap_after[i - 1]
-            if not end_run:
-                continue
-            idx = np.arange(start_i, i)
-            if i == tc.size:
-                last_T = float(np.nanmedian(period[max(0, i - 9): i - 1])) if i > 1 else 0.0
-                end = float(min(t1, tc[i - 1] + last_T))
-                add_regime(labels[start_i], cur_start, end, idx)
-                if t1 - tc[i - 1] > max(cfg.quiet_gap_periods * last_T, cfg.quiet_min_s):
-                    add_regime("quiet", end, t1, np.empty(0, int))
-                else:
-                    segs[-1].end_s = t1
-            elif gap_after[i - 1]:
-                lt = float(local_T[i - 1]) if np.isfinite(local_T[i - 1]) else float(period[i - 2])
-                end = float(tc[i - 1] + lt)
-                add_regime(labels[start_i], cur_start, end, idx)
-                nxt = float(tc[i] - 0.5 * lt)
-                add_regime("quiet", end, nxt, np.empty(0, int))
-                cur_start = nxt
-            else:
-                b = float(0.5 * (tc[i - 1] + tc[i]))
-                add_regime(labels[start_i], cur_start, b, idx)
-                cur_start = b
-            start_i = i
-        _merge_adjacent(segs)
+    segs = _regime_segments(t0, t1, tc, period, mism, labels, cfg)
 
     # spectral features per column of the paper's spectrogram, on x' (harmonics weigh more, as in Fig. 5)
     v = np.gradient(x, t) if xdot is None else np.asarray(xdot, float)
@@ -285,8 +209,119 @@ def detect_transitions(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None = N
         if s.kind == "quasi-steady":
             inside_qs |= (ct >= s.start_s) & (ct <= s.end_s)
     ref = float(np.median(bw[inside_qs])) if inside_qs.any() else float(np.percentile(bw, 25))
-    wide = bw > cfg.widening_factor * ref
+    for s in segs:
+        m = (ct >= s.start_s) & (ct <= s.end_s)
+        if m.any():
+            s.subharmonic_db = float(np.median(sub[m]))
+            s.bandwidth_ratio = float(np.median(bw[m]) / ref)
+    segs += _widening_segments(ct, bw > cfg.widening_factor * ref, bw, sub, ref, t0, t1, cfg)
+    segs.sort(key=lambda s: (s.start_s, s.track))
+    res = TransitionResult(cfg=cfg, signal=signal_name, n_cycles=int(tc.size), reference_bandwidth_hz=ref,
+                           segments=segs)
+    trace = TransitionTrace(tc, amp, period, mism, labels, ct, line, sub, bw, (f, ct, pxx))
+    return res, trace
+
+
+def _cycle_labels(mism: np.ndarray, cfg: TransitionCfg) -> list[str]:
+    """Regime of every cycle from its mismatch per period n (see detect_transitions); cycles at the ends
+    that cannot be judged take the nearest judged label, and short runs merge into a neighbour."""
+    names = {1: "quasi-steady", 2: "period-doubling", 3: "period-3", 4: "period-4"}
+    labels = []
+    for k in range(mism.shape[1]):
+        lab = "irregular"
+        for n in range(1, cfg.max_period + 1):
+            if np.isfinite(mism[n - 1, k]) and mism[n - 1, k] < cfg.mismatch_tol:
+                lab = names[n]
+                break
+        else:
+            if not np.isfinite(mism[:, k]).any():
+                lab = None  # too close to an end to judge: takes its neighbour's label
+        labels.append(lab)
+    judged = [i for i, lab in enumerate(labels) if lab is not None]
+    if judged:
+        for i in range(len(labels)):
+            if labels[i] is None:
+                labels[i] = labels[min(judged, key=lambda j: abs(j - i))]
+    return _merge_short([str(lab) for lab in labels], cfg.min_cycles)
+
+
+def _regime_segment(kind: str, a: float, b: float, idx: np.ndarray, period: np.ndarray, mism: np.ndarray,
+                    cfg: TransitionCfg) -> TransitionSegment | None:
+    """A regime segment from a to b over the cycles ``idx``, with their median interval and mismatches
+    (None if empty)."""
+    if b <= a:
+        return None
+    seg = TransitionSegment(track="regime", kind=kind, start_s=a, end_s=b, n_cycles=int(idx.size))
+    if idx.size:
+        per = period[idx]
+        per = per[np.isfinite(per)]
+        seg.period_s = float(np.median(per)) if per.size else None
+        for n, name in ((1, "mismatch_p1"), (2, "mismatch_p2")):
+            if n <= cfg.max_period:
+                v = mism[n - 1, idx]
+                v = v[np.isfinite(v)]
+                setattr(seg, name, float(np.median(v)) if v.size else None)
+    return seg
+
+
+def _regime_segments(t0: float, t1: float, tc: np.ndarray, period: np.ndarray, mism: np.ndarray, labels: list[str],
+                     cfg: TransitionCfg) -> list[TransitionSegment]:
+    """The regime track over [t0, t1]: runs of cycles of equal label, split at quiet gaps (no cycle for
+    quiet_gap_periods local periods, and the run's ends beyond the last cycle)."""
+    local_T = _rolling_median(period, 9) if tc.size else np.empty(0)
+    segs: list[TransitionSegment] = []
+
+    def add_regime(kind: str, a: float, b: float, idx: np.ndarray) -> None:
+        seg = _regime_segment(kind, a, b, idx, period, mism, cfg)
+        if seg is not None:
+            segs.append(seg)
+
+    if tc.size < 3:
+        add_regime("quiet", t0, t1, np.arange(tc.size))
+        return segs
+    gap_after = np.zeros(tc.size, bool)
+    gap_after[:-1] = np.diff(tc) > np.maximum(cfg.quiet_gap_periods * np.nan_to_num(local_T[:-1], nan=np.inf),
+                                              cfg.quiet_min_s)
+    start_i = 0
+    cur_start = t0
+    first_T = float(np.nanmedian(period[: min(9, period.size)]))
+    if tc[0] - t0 > max(cfg.quiet_gap_periods * first_T, cfg.quiet_min_s):
+        add_regime("quiet", t0, float(tc[0] - 0.5 * first_T), np.empty(0, int))
+        cur_start = float(tc[0] - 0.5 * first_T)
+    for i in range(1, tc.size + 1):
+        end_run = i == tc.size or labels[i] != labels[start_i] or gap_after[i - 1]
+        if not end_run:
+            continue
+        idx = np.arange(start_i, i)
+        if i == tc.size:
+            last_T = float(np.nanmedian(period[max(0, i - 9): i - 1])) if i > 1 else 0.0
+            end = float(min(t1, tc[i - 1] + last_T))
+            add_regime(labels[start_i], cur_start, end, idx)
+            if t1 - tc[i - 1] > max(cfg.quiet_gap_periods * last_T, cfg.quiet_min_s):
+                add_regime("quiet", end, t1, np.empty(0, int))
+            else:
+                segs[-1].end_s = t1
+        elif gap_after[i - 1]:
+            lt = float(local_T[i - 1]) if np.isfinite(local_T[i - 1]) else float(period[i - 2])
+            end = float(tc[i - 1] + lt)
+            add_regime(labels[start_i], cur_start, end, idx)
+            nxt = float(tc[i] - 0.5 * lt)
+            add_regime("quiet", end, nxt, np.empty(0, int))
+            cur_start = nxt
+        else:
+            b = float(0.5 * (tc[i - 1] + tc[i]))
+            add_regime(labels[start_i], cur_start, b, idx)
+            cur_start = b
+        start_i = i
+    _merge_adjacent(segs)
+    return segs
+
+
+def _widening_segments(ct: np.ndarray, wide: np.ndarray, bw: np.ndarray, sub: np.ndarray, ref: float, t0: float,
+                       t1: float, cfg: TransitionCfg) -> list[TransitionSegment]:
+    """Spectrum-track segments over runs of at least widening_min_columns wide columns (centres ``ct``)."""
     half = 0.5 * (SPEC_NPERSEG - SPEC_NOVERLAP) / SPEC_FS
+    segs = []
     k = 0
     while k < ct.size:
         if not wide[k]:
@@ -302,17 +337,7 @@ def detect_transitions(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None = N
                                           bandwidth_ratio=float(np.median(bw[k:j + 1]) / ref),
                                           subharmonic_db=float(np.median(sub[k:j + 1]))))
         k = j + 1
-    for s in segs:
-        if s.track == "regime":
-            m = (ct >= s.start_s) & (ct <= s.end_s)
-            if m.any():
-                s.subharmonic_db = float(np.median(sub[m]))
-                s.bandwidth_ratio = float(np.median(bw[m]) / ref)
-    segs.sort(key=lambda s: (s.start_s, s.track))
-    res = TransitionResult(cfg=cfg, signal=signal_name, n_cycles=int(tc.size), reference_bandwidth_hz=ref,
-                           segments=segs)
-    trace = TransitionTrace(tc, amp, period, mism, labels, ct, line, sub, bw, (f, ct, pxx))
-    return res, trace
+    return segs
 
 
 def _merge_adjacent(segs: list[TransitionSegment]) -> None:

@@ -5,6 +5,7 @@ Written with the one figure writer ``daq.io.png.save_png`` (atomic, 110 dpi as b
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -26,17 +27,36 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     matplotlib.use("Agg")
 
     outdir.mkdir(parents=True, exist_ok=True)
-    eps = res.sgn_eps_m_per_s
-    th = res.fit.theta()
     name = Path(res.data).name
-    c = res.fit.coefficients
-    coef_txt = (f"A={c['A'].value:.4g}  B={c['B'].value:.4g} s/m  C={c['C'].value:.4g} s/m  "
-                f"D={c['D'].value:.4g} s/m  E={c['E'].value:.4g}  R²={res.fit.R2:.4f}")
-    paths = []
-    u = s.used
-    av = np.abs(s.v)
+    bins = _SpeedBins.of(np.abs(s.v)[s.used])
+    return [_mu_t_figure(res, s, name, outdir), _mu_v_figure(res, s, name, bins, outdir),
+            _residuals_figure(res, s, name, bins, outdir)]
 
-    # 1: mu(t)
+
+@dataclass
+class _SpeedBins:
+    """Log-spaced bins of the used sliding speeds |v_wz| (those with >= 20 samples) for bin medians."""
+
+    vv: np.ndarray  # 400 speeds over the used range, for the law's curve
+    idx: np.ndarray  # bin of every used sample
+    full: list[int]  # bins with >= 20 samples
+    mids: np.ndarray  # median speed of each full bin
+
+    @classmethod
+    def of(cls, av_u: np.ndarray) -> _SpeedBins:
+        vv = np.geomspace(max(av_u.min(), 1e-5), av_u.max(), 400)
+        edges = np.geomspace(vv[0], vv[-1] * 1.0001, 40)
+        idx = np.digitize(av_u, edges)
+        full = [i for i in range(1, edges.size) if np.sum(idx == i) >= 20]
+        return cls(vv, idx, full, np.array([np.median(av_u[idx == i]) for i in full]))
+
+    def medians(self, y: np.ndarray) -> np.ndarray:
+        return np.array([np.median(y[self.idx == i]) for i in self.full])
+
+
+def _mu_t_figure(res: DrumMuResult, s: MuSeries, name: str, outdir: Path) -> Path:
+    """1: mu(t) (used samples marked), v_wz with +-v_min, and the thrust N, against time."""
+    u = s.used
     fig, axs = plt.subplots(3, 1, figsize=(12, 8.5), sharex=True, constrained_layout=True)
     ax = axs[0]
     ax.plot(s.t, s.mu, lw=0.3, color="0.7", label="not used (|v_wz| < v_min, guard, record edges)")
@@ -59,22 +79,23 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
     axs[2].set_xlabel("t [s]")
     for a in axs:
         a.grid(alpha=0.3)
-    paths.append(save_png(fig, outdir / "mu_t.png", dpi=110))
+    return save_png(fig, outdir / "mu_t.png", dpi=110)
 
-    # 2: mu vs v with the fit
 
-    fig, ax = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
-    vv = np.geomspace(max(av[u].min(), 1e-5), av[u].max(), 400)
-    edges = np.geomspace(vv[0], vv[-1] * 1.0001, 40)
-    idx = np.digitize(av[u], edges)
-    full = [i for i in range(1, edges.size) if np.sum(idx == i) >= 20]
-    mids = np.array([np.median(av[u][idx == i]) for i in full])
-    meds = np.array([np.median(s.mu[u][idx == i]) for i in full])
+def _mu_v_figure(res: DrumMuResult, s: MuSeries, name: str, bins: _SpeedBins, outdir: Path) -> Path:
+    """2: mu against |v_wz| (linear and log) with bin medians and the fitted law (3)."""
+    u = s.used
+    av = np.abs(s.v)
+    c = res.fit.coefficients
+    coef_txt = (f"A={c['A'].value:.4g}  B={c['B'].value:.4g} s/m  C={c['C'].value:.4g} s/m  "
+                f"D={c['D'].value:.4g} s/m  E={c['E'].value:.4g}  R²={res.fit.R2:.4f}")
+    meds = bins.medians(s.mu[u])
     step = max(1, int(u.sum()) // 8000)
+    fig, ax = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
     for k, axk in enumerate(ax):
         axk.plot(av[u][::step] * 1e3, s.mu[u][::step], ".", ms=1.2, alpha=0.3, color="C0")
-        axk.plot(mids * 1e3, meds, "o", ms=4, color="C1")
-        axk.plot(vv * 1e3, law(vv, th, eps), color="k", lw=1.5)
+        axk.plot(bins.mids * 1e3, meds, "o", ms=4, color="C1")
+        axk.plot(bins.vv * 1e3, law(bins.vv, res.fit.theta(), res.sgn_eps_m_per_s), color="k", lw=1.5)
         axk.set_xlabel("sliding speed v_wz [mm/s]" + (" (log scale)" if k else ""))
         axk.set_ylabel("μ [-]")
         if k:
@@ -86,14 +107,19 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
                   Line2D([], [], color="k", lw=1.5)], ["μ(t) samples used", "bin medians", "law (3) fitted"],
                  fontsize=8, loc="upper center")
     fig.suptitle(f"{name}: law (3) fitted, P ≈ {res.thrust_N['mean']:.1f} N\n{coef_txt}", fontsize=10)
-    paths.append(save_png(fig, outdir / "mu_v.png", dpi=110))
+    return save_png(fig, outdir / "mu_v.png", dpi=110)
 
-    # 3: residuals
-    r = s.mu[u] - law(av[u], th, eps)
-    rmed = np.array([np.median(r[idx == i]) for i in full])
+
+def _residuals_figure(res: DrumMuResult, s: MuSeries, name: str, bins: _SpeedBins, outdir: Path) -> Path:
+    """3: residuals of law (3) against |v_wz| (with bin medians) and against time."""
+    u = s.used
+    av = np.abs(s.v)
+    step = max(1, int(u.sum()) // 8000)
+    r = s.mu[u] - law(av[u], res.fit.theta(), res.sgn_eps_m_per_s)
+    rmed = bins.medians(r)
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.8), constrained_layout=True)
     ax[0].plot(av[u][::step] * 1e3, r[::step], ".", ms=1.2, alpha=0.3, label="samples")
-    ax[0].plot(mids * 1e3, rmed, "o-", ms=3, lw=1, color="C3", label="bin medians")
+    ax[0].plot(bins.mids * 1e3, rmed, "o-", ms=3, lw=1, color="C3", label="bin medians")
     _log_mm(ax[0])
     ax[0].axhline(0, color="k", lw=0.8)
     ax[0].set_xlabel("sliding speed v_wz [mm/s] (log scale)")
@@ -111,8 +137,7 @@ def figures(res: DrumMuResult, s: MuSeries, outdir: Path) -> list[Path]:
         a.grid(alpha=0.3)
         a.set_ylim(-1.3 * q, 1.3 * q)
     fig.suptitle(f"{name}: residuals of law (3)", fontsize=11)
-    paths.append(save_png(fig, outdir / "residuals.png", dpi=110))
-    return paths
+    return save_png(fig, outdir / "residuals.png", dpi=110)
 
 
 def _log_mm(ax) -> None:
