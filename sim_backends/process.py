@@ -43,6 +43,7 @@ import zmq
 from daq.config import CanSettings, RigConfig, StreamSettings, load_rig, parse_rig
 from daq.errors import InputError
 from daq.sim.effectset import parse_effect
+from daq.streaming.child_process import pid_alive, terminate
 
 from .hardware import SimulatedHardware
 
@@ -138,26 +139,6 @@ def _status(hw) -> dict[str, Any]:
     return out
 
 
-def pid_alive(pid: int | None) -> bool:
-    """True if process ``pid`` runs: a zombie (dead, not yet reaped by its parent) counts as gone, as does no pid.
-
-    The one copy for the daemon's session state, the campaign's supervision and the simulated bench's owner check.
-    """
-    if not pid:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: it exists
-        return True
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return True
-
-
 def wait_gone(pid: int | None, timeout: float, poll_s: float = 0.05) -> bool:
     """True once process ``pid`` has ended (within ``timeout``)."""
     t_end = time.monotonic() + timeout
@@ -186,13 +167,7 @@ def read_ready(proc: subprocess.Popen, timeout_s: float, hint: str = "") -> dict
 
 def stop_daemon(proc: subprocess.Popen, wait_s: float = 60.0) -> None:
     """SIGTERM a ``daq daemon`` child (it ramps down and closes any recording), SIGKILL it after ``wait_s``."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(wait_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    terminate(proc, wait_s, kill_wait_s=None)
 
 
 def end_bench(pid: int | None, control: str | None, ask_s: float, wait_s: float) -> None:

@@ -150,11 +150,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         raise InputError(args.keys or args.control, "--control", str(exc).splitlines()[0]) from None
     web_at = parse_web(args.web, ccfg.curve) if args.web else None
     state_dir = Path(args.state_dir) if args.state_dir else Path(args.data_dir) / STATE_DIR_NAME
-    daemon = Daemon(DaemonCfg(rig=args.rig, sim=args.sim, sim_effects=args.effect, sim_time_scale=args.time_scale,
-                              sim_seed=args.seed,
-                              data_dir=Path(args.data_dir), bus_endpoint=args.bus,
-                              workdir=Path(args.workdir) if args.workdir else None, state_dir=state_dir,
-                              control_endpoint=args.control))
+    daemon = Daemon(DaemonCfg(rig=args.rig, data_dir=Path(args.data_dir), bus_endpoint=args.bus, state_dir=state_dir,
+                              control_endpoint=args.control), bench=_sim_bench(args) if args.sim else None)
     done = daemon.install_signal_handlers()  # before start: a SIGTERM while starting still ramps down
     try:
         daemon.start()
@@ -164,8 +161,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     except zmq.ZMQError as exc:  # a socket another program holds: one line, not a traceback (issue 29)
         print(f"daq daemon: cannot bind the sample bus {args.bus}: {exc}", file=sys.stderr, flush=True)
         return 1
-    if daemon.unclean is not None:
-        print(f"daq daemon: WARNING: {daemon.unclean.summary()}; motion refused until `daq ctl reset`",
+    if daemon.motion.unclean is not None:
+        print(f"daq daemon: WARNING: {daemon.motion.unclean.summary()}; motion refused until `daq ctl reset`",
               file=sys.stderr, flush=True)
     server = web = None
     try:
@@ -176,7 +173,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             return 1
         if web_at is not None:
             web = _start_web(daemon, server, web_at, ccfg.curve)
-        sim = f" sim_bench_pid={daemon.sim.pid} sim_control={daemon.sim.control}" if daemon.sim else ""
+        sim = f" sim_bench_pid={daemon.bench.pid} sim_control={daemon.bench.control}" if daemon.bench else ""
         est = f" estimator={daemon.estimator.endpoint}" if daemon.estimator else ""
         print(f"daq daemon: ready rig={daemon.rig.rig} control={server.endpoint} curve={ccfg.curve} "
               f"bus={daemon.acq.endpoint}{est}{sim}{f' web={web.url}' if web else ''}", flush=True)
@@ -191,6 +188,15 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         daemon.shutdown()
     print("daq daemon: stopped", flush=True)
     return 0
+
+
+def _sim_bench(args: argparse.Namespace):
+    """``--sim``: the factory of the simulated bench the daemon drives (the daemon does not know the simulator)."""
+    # heavy: the simulator only with --sim
+    from daq.daemon.sim_bench import SimBenchCfg, sim_bench_factory
+
+    return sim_bench_factory(SimBenchCfg(rig=args.rig, effects=args.effect, time_scale=args.time_scale, seed=args.seed,
+                                         workdir=Path(args.workdir) if args.workdir else None))
 
 
 def _start_web(daemon, server, at: tuple[str, int], curve: bool):

@@ -16,7 +16,8 @@ daemon on the rig) and "the last session died" are told apart without trusting p
 Why reattach to the simulated bench: on a real rig the regulator outlives the daemon and
 its latched watchdog trip is there to be read; a fresh simulated bench would have forgotten
 it. A ``--sim`` daemon that finds the previous session's bench still running, with the same
-rig, effects, time scale and seed, therefore connects to it instead of starting another.
+rig, effects, time scale and seed, therefore connects to it instead of starting another
+(daq/daemon/sim_bench.py; this module keeps only the bench's reference, :class:`BenchRef`).
 
 Decision record: docs/decisions/0017-crash-truth.md.
 """
@@ -25,7 +26,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import fcntl
-import json
 import os
 import signal
 import threading
@@ -38,8 +38,8 @@ from pydantic import Field, ValidationError
 from daq.errors import DaqError, InputError
 from daq.io.h5recover import is_unclean
 from daq.io.runfile import recover_run
+from daq.streaming.child_process import pid_alive
 from daq.strict import Closed
-from sim_backends.process import pid_alive, request as bench_request
 
 STATE_DIR_NAME = ".daq-daemon"  # under the data directory, unless --state-dir
 HEARTBEAT_S = 2.0  # how often last_alive_at is refreshed: the bound on "when did it end"
@@ -306,6 +306,26 @@ class SessionKeeper:
 # ----------------------------------------------------------------------------- recordings left behind
 
 
+def open_session(keeper: SessionKeeper, started_at: _dt.datetime, bench: BenchRef | None, new_bench: bool,
+                 regulator: RegulatorReading | None) -> UncleanEnd | None:
+    """Mark this session running in ``keeper``'s file; the last session's unclean end, if there is one.
+
+    An end found now (not carried from an earlier start) gets the regulator as read now and what became of
+    its recording; ``new_bench``: a new simulated bench was started, so its regulator is not the one that tripped.
+    """
+    unclean = keeper.unclean_end(utcnow())
+    if unclean is not None and unclean.found_by_pid == os.getpid():  # found now, not carried from before
+        outcome = previous_recording_outcome(unclean.recording) if unclean.recording else None
+        notes = [unclean.note] if unclean.note else []
+        if new_bench:
+            notes.append("a new simulated bench was started (the last one is gone or simulates something "
+                         "else): its regulator is not the one that tripped")
+        unclean = unclean.model_copy(update={"regulator": regulator, "recording_outcome": outcome,
+                                             "note": "; ".join(notes)})
+    keeper.begin(started_at, bench, unclean)
+    return unclean
+
+
 def recover_recording(path: str | Path) -> tuple[bool, str, float]:
     """Make a recording whose writer died openable by plain h5py/MATLAB: (changed, what happened, seconds).
 
@@ -333,79 +353,3 @@ def previous_recording_outcome(rec: RecordingRef, wait_s: float = 3.0) -> str:
     if pid_runs(rec.recorder_pid, "daq.streaming.recorder"):
         return f"its recorder (pid {rec.recorder_pid}) is still closing it"
     return recover_recording(rec.path)[1]
-
-
-# ----------------------------------------------------------------------------- the simulated bench, again
-
-
-class AttachedSimBench:
-    """The previous session's simulated bench, still running: what SimBenchProcess offers the daemon.
-
-    Not our child: liveness is by pid, and the bench (whose owner died) exits once nobody has
-    asked for its status for its linger time, so ``keepalive`` asks every few seconds.
-    """
-
-    KEEPALIVE_S = 5.0
-
-    def __init__(self, ref: BenchRef) -> None:
-        self.ref = ref
-        self.pid = ref.pid
-        self.control = ref.control
-        self.endpoints = ref.endpoints
-        self.workdir = Path(ref.workdir)
-        self._last_ping = time.monotonic()
-
-    @classmethod
-    def find(cls, ref: BenchRef | None, rig: str, workdir: Path | None, effects: list[str], time_scale: float,
-             seed: int) -> AttachedSimBench | None:
-        """The bench of ``ref`` if it runs the same simulation and answers; else None (start a new one)."""
-        if ref is None or ref.rig != rig or ref.effects != list(effects) or ref.time_scale != time_scale \
-                or ref.seed != seed:
-            return None
-        if workdir is not None and Path(workdir).resolve() != Path(ref.workdir).resolve():
-            return None
-        try:
-            info = json.loads((Path(ref.workdir) / "sim.json").read_text())
-        except (OSError, ValueError):
-            return None
-        if info.get("pid") != ref.pid or not pid_runs(ref.pid, "sim_backends.process"):
-            return None
-        try:
-            bench_request(ref.control, "status", timeout_s=2.0)
-        except (TimeoutError, OSError):
-            return None
-        return cls(ref)
-
-    def request(self, op: str, timeout_s: float = 5.0) -> dict[str, Any]:
-        self._last_ping = time.monotonic()
-        return bench_request(self.control, op, timeout_s)
-
-    def status(self) -> dict[str, Any]:
-        return self.request("status")
-
-    def keepalive(self) -> None:
-        if time.monotonic() - self._last_ping >= self.KEEPALIVE_S:
-            try:
-                self.request("status", timeout_s=1.0)
-            except (TimeoutError, OSError):
-                pass
-
-    def alive(self) -> bool:
-        return pid_alive(self.pid)
-
-    def stop(self, timeout: float = 10.0) -> None:
-        """Ask the bench to exit (as the daemon that started it would); SIGTERM if it does not."""
-        if not self.alive():
-            return
-        try:
-            self.request("exit", timeout_s=2.0)
-        except (TimeoutError, OSError):
-            try:
-                os.kill(self.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                return
-        t_end = time.monotonic() + timeout
-        while self.alive() and time.monotonic() < t_end:
-            time.sleep(0.05)
-        if self.alive():
-            os.kill(self.pid, signal.SIGKILL)

@@ -46,6 +46,7 @@ from websockets.sync.client import connect
 
 from daq.io.jsonout import write_json
 from daq.io.png import save_png  # sets the Agg backend (before any figure exists)
+from daq.io.stream_format import Block
 from daq.streaming.bus import Subscriber
 from daq.strict import Strict
 from sim_backends.process import end_bench, read_ready, stop_daemon
@@ -238,7 +239,7 @@ def _nominal_rates(bus: str, seconds: float = 5.0) -> dict[str, float | None]:
     try:
         while time.monotonic() < t_end:
             msg = sub.recv(0.2)
-            if msg is not None and hasattr(msg, "meta"):
+            if isinstance(msg, Block):
                 rates.setdefault(msg.meta.stream, msg.meta.rate_hz)
     finally:
         sub.close()
@@ -322,118 +323,157 @@ def _figure(processes: list[ProcessMemory], series: dict[tuple[str, int], list[t
     save_png(fig, path)
 
 
-def run_soak(cfg: SoakCfg, log: Callable[[str], None], interrupt: threading.Event | None = None) -> SoakResult:
-    """The soak itself (see the module's docstring); progress lines through ``log`` every minute. ``interrupt``
-    set (the CLI's SIGTERM/SIGINT) ends it early, with the figures of what ran."""
-    interrupt = interrupt or threading.Event()
-    out = cfg.out_dir
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "ramp.toml").write_text(RAMP)
-    started_at = datetime.now(UTC).isoformat(timespec="seconds")
-    d = _Daemon(cfg.rig, out, log)
-    stop = threading.Event()
-    ctl = ControlClient(d.fields["control"], timeout_s=120.0)  # record_start waits for the recorder
-    quick = ControlClient(d.fields["control"], timeout_s=STATUS_TIMEOUT_S)  # status: a dead daemon is seen soon
-    web = d.fields["web"]
-    ws_url = web.replace("http://", "ws://") + "ws"
-    series: dict[tuple[str, int], list[tuple[float, float]]] = {}
-    counts: list[tuple[float, dict[str, int]]] = []
-    recordings: list[Path] = []
-    ramps = status_timeouts = 0
-    status: dict[str, Any] = {}
-    web_stats: dict[str, Any] = {}
-    stalled_stack = contextlib.ExitStack()
-    viewer = _Viewer(ws_url, stop)
-    daemon_exit = None
-    try:
-        nominal = _nominal_rates(d.fields["bus"])
-        for page in ("", "static/app.js"):  # the page as a browser loads it
-            with urllib.request.urlopen(web + page, timeout=10) as r:
+class _SoakRun:
+    """One soak against a running daemon: what it asks, what it measures, and when (the steps of :func:`run_soak`)."""
+
+    def __init__(self, cfg: SoakCfg, d: _Daemon, log: Callable[[str], None], interrupt: threading.Event) -> None:
+        self.cfg, self.d, self.log, self.interrupt = cfg, d, log, interrupt
+        self.out = cfg.out_dir
+        self.stop = threading.Event()
+        self.ctl = ControlClient(d.fields["control"], timeout_s=120.0)  # record_start waits for the recorder
+        self.quick = ControlClient(d.fields["control"], timeout_s=STATUS_TIMEOUT_S)  # a dead daemon is seen soon
+        self.web = d.fields["web"]
+        self.ws_url = self.web.replace("http://", "ws://") + "ws"
+        self.series: dict[tuple[str, int], list[tuple[float, float]]] = {}
+        self.counts: list[tuple[float, dict[str, int]]] = []
+        self.recordings: list[Path] = []
+        self.ramps = self.status_timeouts = 0
+        self.status: dict[str, Any] = {}
+        self.web_stats: dict[str, Any] = {}
+        self.stalled_stack = contextlib.ExitStack()
+        self.viewer = _Viewer(self.ws_url, self.stop)
+        self.daemon_exit: int | None = None
+        self.nominal: dict[str, float | None] = {}
+        self.measured_min = 0.0
+
+    def open_viewers(self) -> None:
+        """The page as a browser loads it, a stalled viewer that never reads a frame, and a reading one."""
+        for page in ("", "static/app.js"):
+            with urllib.request.urlopen(self.web + page, timeout=10) as r:
                 r.read()
-        stalled = stalled_stack.enter_context(connect(ws_url, open_timeout=30))
-        stalled.send(json.dumps({"type": "view", "window_s": 10, "width": 1500}))  # ... and never reads a frame
-        viewer.start()
+        stalled = self.stalled_stack.enter_context(connect(self.ws_url, open_timeout=30))
+        stalled.send(json.dumps({"type": "view", "window_s": 10, "width": 1500}))
+        self.viewer.start()
 
-        def record_start() -> None:
-            path = out / "data" / f"soak-{len(recordings) + 1:03d}.h5"
-            r = ctl.request("record_start", path=str(path))
-            if not r.ok:
-                raise RuntimeError(f"record_start refused: {r.error}")
-            recordings.append(path)
+    def record_start(self) -> None:
+        path = self.out / "data" / f"soak-{len(self.recordings) + 1:03d}.h5"
+        r = self.ctl.request("record_start", path=str(path))
+        if not r.ok:
+            raise RuntimeError(f"record_start refused: {r.error}")
+        self.recordings.append(path)
 
-        record_start()
+    def loop(self) -> None:
+        """Sample every ``cfg.sample_every()`` until the end, an interrupt or the daemon's death; keep a ramp
+        running, start a new recording every ``record_every_min``, log every minute."""
+        cfg = self.cfg
         t0 = time.monotonic()
         every = cfg.sample_every()
-        next_rotation = t0 + cfg.record_every_min * 60
-        next_log = t0 + 60.0
-        t_end = t0 + cfg.minutes * 60
-        while True:
+        next_rotation, next_log, t_end = t0 + cfg.record_every_min * 60, t0 + 60.0, t0 + cfg.minutes * 60
+        while not self._ended(t0):
             now = time.monotonic()
-            if d.proc.poll() is not None:
-                daemon_exit = d.proc.returncode
-                log(f"soak: the daemon ended unexpectedly (exit {daemon_exit}); see {out / 'daemon.log'}")
-                break
-            if interrupt.is_set():
-                log(f"soak: interrupted after {(now - t0) / 60:.1f} min: the figures of what ran")
-                break
             try:
-                r = quick.request("status")
+                r = self.quick.request("status")
             except TimeoutError:
-                status_timeouts += 1
+                self.status_timeouts += 1
                 if now >= t_end:
                     break
                 continue  # the daemon's exit is seen at the top; a busy one is asked again
-            status = r.result if r.ok else status
+            self.status = r.result if r.ok else self.status
             minute = (time.monotonic() - t0) / 60
-            for pid, role in _family(status, d.proc.pid).items():
-                mb = _rss_mb(pid)
-                if mb is not None:
-                    series.setdefault((role, pid), []).append((minute, mb))
-            counts.append((time.monotonic(), {k: int(s.get("samples") or 0)
-                                              for k, s in status.get("streams", {}).items()}))
-            with contextlib.suppress(OSError, ValueError):
-                web_stats = _get_json(web + "api/stats")
-            ramp = status.get("ramp")
-            if cfg.ramps and (ramp is None or ramp.get("state") not in RAMP_ACTIVE):
-                with contextlib.suppress(TimeoutError):
-                    ramps += ctl.request("ramp", file=str(out / "ramp.toml")).ok
+            self._sample(minute)
+            self._keep_a_ramp_running()
             if now >= t_end:
                 break
             if now >= next_rotation:
                 with contextlib.suppress(TimeoutError):
-                    ctl.request("record_stop")
-                record_start()
+                    self.ctl.request("record_stop")
+                self.record_start()
                 next_rotation += cfg.record_every_min * 60
             if now >= next_log:
-                rss = "  ".join(f"{role} {pts[-1][1]:.0f}" for (role, _), pts in series.items()
-                                if pts[-1][0] >= minute - every / 60)
-                drops = status.get("drops", {})
-                log(f"soak: {minute:6.1f}/{cfg.minutes:g} min  RSS MB: {rss}  recordings {len(recordings)}  "
-                    f"ramps {ramps}  recorder lost {drops.get('recorder_lost_blocks', 0)}  "
-                    f"viewer frames {viewer.counts['frames']}")
+                self._log_minute(minute, every)
                 next_log += 60.0
-            interrupt.wait(max(0.0, min(every, t_end - time.monotonic()) - (time.monotonic() - now)))
-        measured_min = (time.monotonic() - t0) / 60
-        if daemon_exit is None:
-            with contextlib.suppress(OSError, ValueError):
-                web_stats = _get_json(web + "api/stats")
+            self.interrupt.wait(max(0.0, min(every, t_end - time.monotonic()) - (time.monotonic() - now)))
+        self.measured_min = (time.monotonic() - t0) / 60
+
+    def _ended(self, t0: float) -> bool:
+        """The daemon died, or the operator interrupted (each said once, in the log)."""
+        if self.d.proc.poll() is not None:
+            self.daemon_exit = self.d.proc.returncode
+            self.log(f"soak: the daemon ended unexpectedly (exit {self.daemon_exit}); see {self.out / 'daemon.log'}")
+            return True
+        if self.interrupt.is_set():
+            self.log(f"soak: interrupted after {(time.monotonic() - t0) / 60:.1f} min: the figures of what ran")
+            return True
+        return False
+
+    def _sample(self, minute: float) -> None:
+        """Every process's RSS, every stream's sample count, the web server's stats."""
+        for pid, role in _family(self.status, self.d.proc.pid).items():
+            mb = _rss_mb(pid)
+            if mb is not None:
+                self.series.setdefault((role, pid), []).append((minute, mb))
+        self.counts.append((time.monotonic(), {k: int(s.get("samples") or 0)
+                                               for k, s in self.status.get("streams", {}).items()}))
+        with contextlib.suppress(OSError, ValueError):
+            self.web_stats = _get_json(self.web + "api/stats")
+
+    def _keep_a_ramp_running(self) -> None:
+        ramp = self.status.get("ramp")
+        if self.cfg.ramps and (ramp is None or ramp.get("state") not in RAMP_ACTIVE):
             with contextlib.suppress(TimeoutError):
-                ctl.request("stop")
-                ctl.request("record_stop")
+                self.ramps += self.ctl.request("ramp", file=str(self.out / "ramp.toml")).ok
+
+    def _log_minute(self, minute: float, every: float) -> None:
+        rss = "  ".join(f"{role} {pts[-1][1]:.0f}" for (role, _), pts in self.series.items()
+                        if pts[-1][0] >= minute - every / 60)
+        drops = self.status.get("drops", {})
+        self.log(f"soak: {minute:6.1f}/{self.cfg.minutes:g} min  RSS MB: {rss}  recordings {len(self.recordings)}  "
+                 f"ramps {self.ramps}  recorder lost {drops.get('recorder_lost_blocks', 0)}  "
+                 f"viewer frames {self.viewer.counts['frames']}")
+
+    def wind_down(self) -> None:
+        """A daemon still alive: its web stats at the end, then the belt stopped and the recording closed."""
+        if self.daemon_exit is None:
+            with contextlib.suppress(OSError, ValueError):
+                self.web_stats = _get_json(self.web + "api/stats")
+            with contextlib.suppress(TimeoutError):
+                self.ctl.request("stop")
+                self.ctl.request("record_stop")
+
+    def close(self) -> None:
+        """The viewers, the clients and the daemon (with its bench); its exit status if it failed."""
+        self.stop.set()
+        self.stalled_stack.close()
+        self.ctl.close()
+        self.quick.close()
+        code = self.d.stop()
+        if self.daemon_exit is None and code not in (0, None):
+            self.daemon_exit = code
+        self.d.stderr_log.close()
+
+
+def run_soak(cfg: SoakCfg, log: Callable[[str], None], interrupt: threading.Event | None = None) -> SoakResult:
+    """The soak itself (see the module's docstring); progress lines through ``log`` every minute. ``interrupt``
+    set (the CLI's SIGTERM/SIGINT) ends it early, with the figures of what ran."""
+    out = cfg.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "ramp.toml").write_text(RAMP)
+    started_at = datetime.now(UTC).isoformat(timespec="seconds")
+    run = _SoakRun(cfg, _Daemon(cfg.rig, out, log), log, interrupt or threading.Event())
+    try:
+        run.nominal = _nominal_rates(run.d.fields["bus"])
+        run.open_viewers()
+        run.record_start()
+        run.loop()
+        run.wind_down()
     finally:
-        stop.set()
-        stalled_stack.close()
-        ctl.close()
-        quick.close()
-        code = d.stop()
-        daemon_exit = daemon_exit if daemon_exit is not None else (code if code not in (0, None) else None)
-        d.stderr_log.close()
-    viewer.join(5.0)
-    if status_timeouts:
-        log(f"soak: {status_timeouts} status request(s) went unanswered for {STATUS_TIMEOUT_S:g} s")
-    result = _result(cfg, started_at, measured_min, nominal, counts, series, recordings, status, web_stats, viewer,
-                     d, ramps, daemon_exit)
-    return result.model_copy(update={"status_timeouts": status_timeouts})
+        run.close()
+    run.viewer.join(5.0)
+    if run.status_timeouts:
+        log(f"soak: {run.status_timeouts} status request(s) went unanswered for {STATUS_TIMEOUT_S:g} s")
+    result = _result(cfg, started_at, run.measured_min, run.nominal, run.counts, run.series, run.recordings,
+                     run.status, run.web_stats, run.viewer, run.d, run.ramps, run.daemon_exit)
+    return result.model_copy(update={"status_timeouts": run.status_timeouts})
 
 
 def _result(cfg: SoakCfg, started_at: str, measured_min: float, nominal: dict[str, float | None],
