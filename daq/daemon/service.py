@@ -55,13 +55,11 @@ from pydantic import Field
 from daq.config import load_rig
 from daq.errors import InputError
 from daq.ramps import Ramp
-from daq.streaming.child_process import terminate as _terminate  # noqa: F401 - daq/web/process.py imports it here
 from daq.strict import Closed
 from drivers.factory import RigDrivers, build_drivers
 
 from .acquisition import Acquisition, AcquisitionCfg
-from .children import ROOT, BenchFactory, BenchHandle, EstimateMonitor, EstimatorProcess, let_the_bus_reach_the_recorder
-from .children import first_line as _first_line  # noqa: F401 - daq/web/process.py imports it here
+from .children import BenchFactory, BenchHandle, EstimateMonitor, EstimatorProcess, let_the_bus_reach_the_recorder
 from .handlers import ControlHandlers
 from .motion import STANDSTILL, MotionGuard
 from .ramp_runner import RampEvent, RampRunner, RampRunnerCfg
@@ -70,7 +68,7 @@ from .rig_lock import RigLocks, lock_keys
 from .session_state import MotionRefused, SessionKeeper, open_session, recover_recording, utcnow
 from .status import StreamRates
 
-__all__ = ["ROOT", "BenchProgress", "Daemon", "DaemonCfg", "run_sim_ramp"]
+__all__ = ["BenchProgress", "Daemon", "DaemonCfg", "run_sim_ramp"]
 
 
 class DaemonCfg(Closed):

@@ -23,8 +23,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 from pydantic import ValidationError
 
+from daq.daemon.children import ROOT, first_line
 from daq.daemon.control import Reply
-from daq.daemon.service import ROOT, _first_line, _terminate
+from daq.streaming.child_process import terminate
 
 from .messages import PipeCommand, PipeReply, Role, WebCfg
 
@@ -46,7 +47,7 @@ class WebProcess:
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="web-command")
         self.proc.stdin.write(cfg.model_dump_json() + "\n")
         self.proc.stdin.flush()
-        info = json.loads(_first_line(self.proc, timeout, "the web process"))
+        info = json.loads(first_line(self.proc, timeout, "the web process"))
         self.url: str = info["url"]
         self._reader = threading.Thread(target=self._read, name="web-commands", daemon=True)
         self._reader.start()
@@ -79,7 +80,7 @@ class WebProcess:
 
     def stop(self) -> None:
         self._stopping = True
-        _terminate(self.proc, 10)
+        terminate(self.proc, 10)
         with self._lock:
             try:
                 self.proc.stdin.close()
