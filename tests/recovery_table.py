@@ -51,8 +51,8 @@ from daq.cli.main import main as daq
 from daq.io.loading import load_data
 from daq.models.diagnose import diagnose
 from daq.models.session import Session
-from daq.models.shooting import Windows
 from daq.models.spec import load_model, rig_config_for
+from daq.models.windows import Windows
 
 RAMPS = {"A": (0.17, 45.0, 40.0), "B": (0.25, 60.0, 52.0),  # V0 [m/s], Tmax [s], record length [s]: to near stop
          "C": (0.17, 45.0, 20.0)}  # short: the suite's subset (tests/test_recovery.py)

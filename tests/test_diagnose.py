@@ -187,7 +187,7 @@ def test_serial_and_parallel_fits_are_the_same_fits(brake_cfg, monkeypatch):
     for (c,) in tasks:
         extended = c.apply(extended, "model add")
     forked = s.fit(extended)
-    monkeypatch.setattr("daq.models.session._can_fork", lambda: False)
+    monkeypatch.setattr("daq.models.forked.can_fork", lambda: False)
     s._own_fits.clear()
     alone = s.fit(extended)
     assert alone is not forked and alone.values == forked.values and alone.fit.cost == forked.fit.cost

@@ -9,8 +9,8 @@ from scipy.optimize import lsq_linear
 
 from daq.config import load_rig
 from daq.errors import InputError
+from daq.models.lm import bounded_step
 from daq.models.session import Session
-from daq.models.shooting import bounded_step
 from daq.models.spec import add_effect, dumps, load_model, remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate

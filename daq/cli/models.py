@@ -164,8 +164,9 @@ def _append_history(path: Path, res: dict) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.compare import OUTLIER_SIGMAS, compare
+    from daq.models.compare import compare
     from daq.models.figures import compare_figure, cycles_figure, spectrogram_figure
+    from daq.models.report import compare_text
     from daq.models.spec import save_model
 
     model, s = _session(args)
@@ -174,13 +175,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     say("noise floor: the fitted model scored on its own simulated output with the measured noise")
     floor = s.noise_floor(f)
     say("forward simulation and breakdowns")
-    res, drawn = compare(s, f, floor)
+    cmp = compare(s, f, floor)
+    res = cmp.result
     if args.report:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
         compare_figure(s, f, res, rep / "compare.png")
-        spectrogram_figure(s, drawn, rep / "spectrogram.png")
-        cycles_figure(s, res, drawn, rep / "cycles.png")
+        spectrogram_figure(s, cmp.drawn, rep / "spectrogram.png")
+        cycles_figure(s, res, cmp.drawn, rep / "cycles.png")
         (rep / "compare.json").write_text(dumps_json(res))
         save_model(f.model, rep / "fitted.toml")
         res["report"] = str(rep)
@@ -189,45 +191,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.json:
         print_json(res)
     else:
-        u = res["error_unit"]
-        print(f"error {res['error']:.4g} {u} on held-out windows (noise floor {res['noise_floor']:.4g}; all windows "
-              f"{res['error_all_windows']:.4g})"
-              f"  model: {res['model']}")
-        print("  by regime: " + "; ".join(f"{k} {v['error']:.3g}" for k, v in res["by_regime"].items()))
-        print("  by signal: " + "; ".join(f"{k} {v['error']:.3g} {v['unit']} (floor {v['noise_floor']:.3g})"
-                                          for k, v in res["by_signal"].items()))
-        if res["clock_jitter_s"] > 0:
-            print(f"  clock jitter {res['clock_jitter_s'] * 1e3:.3g} ms (samples taken early or late, read from the "
-                  "residual's sample-to-sample part growing with speed): counted in the noise floor")
-        far = {k: n for k, n in res["residual_outliers"].items() if n}
-        if far:
-            print(f"  beyond {OUTLIER_SIGMAS:g} noise levels of the model (spikes left, or where it fails): "
-                  + ", ".join(f"{k} {n} samples" for k, n in far.items()))
-        capped = {k: n for k, n in res["loss_capped"].items() if n}
-        if capped:
-            print(f"  {res['loss']} loss: counted linearly, not squared (beyond 3 x the window's residual scale): "
-                  + ", ".join(f"{k} {n} samples" for k, n in capped.items()))
-        print("  invariants (measured / model): " + "; ".join(
-            f"{k} {v['measured']:.4g} / {v['model']:.4g}" for k, v in res["invariants"].items()))
-        c = res["cycles"]
-        print(f"  cycles (record / model free run, medians; {c['record']['cycles']} / {c['model']['cycles']} cycles): "
-              f"stick {c['record']['stick_s_median']:.3g} / {c['model']['stick_s_median']:.3g} s "
-              f"(at the peak load {c['record']['creep_s_median']:.3g} / {c['model']['creep_s_median']:.3g} s), "
-              f"drop {c['record']['drop_median']:.3g} / {c['model']['drop_median']:.3g} {c['unit']}, "
-              f"slip {c['record']['slip_s_median']:.3g} / {c['model']['slip_s_median']:.3g} s, "
-              f"mean period {c['record']['period_s_mean']:.3g} / {c['model']['period_s_mean']:.3g} s")
-        ld = c["loading"]
-        print(f"  loading in the stick, early / late, over the drive's speed: record {ld['early_record']:.2f} / "
-              f"{ld['late_record']:.2f}, model {ld['early_model']:.2f} / {ld['late_model']:.2f} (1: loaded as a "
-              f"stuck slider is; lower late: it creeps before it slips)")
-        if res["by_cycle_phase"]:
-            print("  error by cycle phase (share of samples): " + ", ".join(
-                f"{k} {v['error']:.3g} {res['error_unit']} ({v['fraction']:.0%})" for k, v in res["by_cycle_phase"].items()))
-        mo = res["motion"]
-        print(f"  ringing (strongest line within 2x of the rig's lowest natural frequency {mo['natural_Hz']:.3g} Hz, "
-              f"mains masked): record {mo['line_Hz_record']:.3g} Hz, model {mo['line_Hz_model']:.3g} Hz with "
-              f"{mo['band_power_model_over_record']:.2g} of the record's power there")
-        print(f"  worst regime: {res['worst_regime']}" + (f"; report in {args.report}/" if args.report else ""))
+        print(compare_text(res, args.report))
     return 0
 
 
@@ -235,13 +199,14 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.diagnose import diagnose
     from daq.models.figures import diagnose_figure
+    from daq.models.report import diagnosis_json, diagnosis_text
 
     if args.workers is not None and args.workers < 1:  # checked before any work (issue 16: 0 and -3 were taken)
         raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")
     model, s = _session(args)
     t0 = time.perf_counter()
     d = diagnose(s, model, progress=say, workers=args.workers)
-    res = d.as_json(s)
+    res = diagnosis_json(d, s)
     res["seconds"] = time.perf_counter() - t0
     if args.report:
         rep = Path(args.report)
@@ -255,28 +220,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.json:
         print_json(res)
     else:
-        print(d.summary)
-        print(f"  {'candidate':36s} {'reduction':>9s} {'z':>6s}  params")
-        for c in res["candidates"]:
-            if c["reduction"] is None:
-                print(f"  {c['label']:36s} {'-':>9s} {'':6s}  (screened, predicted gain {c['predicted_gain']:.3g}; "
-                      "not fitted)")
-                continue
-            print(f"  {c['label']:36s} {c['reduction']:9.2f} {c['consistency_z']:6.1f}  "
-                  + ", ".join(f"{k.rsplit('.', 1)[-1]}={v:.4g}" for k, v in c["values"].items()))
-        for step in res["sequence"]:
-            print(f"  added: {step['label']} (removes {step['step_reduction']:.0%} of the excess left, "
-                  f"z {step['consistency_z']:.1f})")
-        for v in res["margins"]:
-            print(f"  margin: {v['label']} " + ("named" if v["decided"] else "undecided") + "; " + ", ".join(
-                f"over {m['rival']} {m['margin']:+.2f} of the excess (5 % bound {m['margin_lower']:+.2f})"
-                for m in v["rivals"]))
-        if res["missing_effect_found"]:
-            print(f"  promised: {res['final_reduction']:.0%} of the excess, as `model add` + `compare` fit it "
-                  f"(the diagnosis's own fit: {res['search_reduction']:.0%})")
-        if not d.found and d.correlations:
-            print("  residual correlates with: " + ", ".join(
-                f"{c['quantity']} ({c['spearman_rho']:+.2f})" for c in d.correlations[:5]))
+        print(diagnosis_text(d, res))
     return 0
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.signal import medfilt, welch
@@ -118,7 +119,14 @@ class Drawn:
     cycles: tuple[dict, dict]
 
 
-def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> tuple[dict, Drawn]:
+class Compared(NamedTuple):
+    """compare's answer: the SPEC's compare JSON, and the arrays its figures draw (kept out of the JSON)."""
+
+    result: dict
+    drawn: Drawn
+
+
+def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> Compared:
     """The SPEC's compare JSON (error and noise floor of the primary signal, and the breakdowns), and the arrays
     its figures draw."""
     m = session.m
@@ -173,7 +181,8 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> tuple[
         out["spectral_line"] = {"t": ts.tolist(), "measured_Hz": fm.tolist(), "model_Hz": fs.tolist()}
     except ValueError:
         out["spectral_line"] = None
-    return out, Drawn(idx, res, fidx, pred, states, aux, (cyc_rec, cyc_model))
+    return Compared(result=out, drawn=Drawn(idx=idx, res=res, fidx=fidx, pred=pred, states=states, aux=aux,
+                                          cycles=(cyc_rec, cyc_model)))
 
 
 def loading(record: dict[str, np.ndarray], model: dict[str, np.ndarray], drive_speed: float) -> dict:

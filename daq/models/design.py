@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import multiprocessing as mp
 import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -39,11 +39,12 @@ from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.sim.run import simulate
 
+from . import forked
 from .candidates import Candidate, candidates_for
 from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
-from .session import Fitted, Session, _can_fork
+from .session import Fitted, Session
 from .spec import STRENGTH_START, Model, form_key
 
 NOTHING = "nothing more"
@@ -298,14 +299,12 @@ def score(session: Session, rivals: list[Rival], prog: Programme) -> Scored:
         if others:
             rec = predicted(session, truth, prog)
             pairs += [score_pair(session, truth, other, rec) for other in others]
-    return Scored(prog, pairs)
+    return Scored(programme=prog, pairs=pairs)
 
 
-_POOL: dict[str, object] = {}  # what a forked scoring process needs (fork: nothing is pickled to it)
-
-
-def _score_task(i: int) -> Scored:
-    return score(_POOL["session"], _POOL["rivals"], _POOL["progs"][i])  # type: ignore[arg-type,index]
+def _score_task(session: Session, rivals: list[Rival], progs: list[Programme], i: int) -> Scored:
+    """Programme ``i`` scored in a forked process (forked.py: the session and the rivals' fits inherited)."""
+    return score(session, rivals, progs[i])
 
 
 def propose(session: Session, rivals: list[Rival], budget_s: float, max_run_s: float, v0: float,
@@ -330,15 +329,11 @@ def propose(session: Session, rivals: list[Rival], budget_s: float, max_run_s: f
             return False
         return True
 
-    if workers > 1 and _can_fork():
-        _POOL.update(session=session, rivals=rivals, progs=progs)
-        try:
-            with mp.get_context("fork").Pool(min(workers, len(progs))) as pool:
-                for res in pool.imap(_score_task, range(len(progs))):
-                    if not take(res):
-                        break
-        finally:
-            _POOL.clear()
+    if workers > 1 and forked.can_fork():
+        with forked.pool(min(workers, len(progs)), partial(_score_task, session, rivals, progs)) as pool:
+            for res in pool.imap(forked.run, range(len(progs))):
+                if not take(res):
+                    break
     else:
         for prog in progs:
             if not take(score(session, rivals, prog)):

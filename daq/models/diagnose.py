@@ -34,6 +34,7 @@ from .candidates import Candidate, add_command, candidates_for
 from .compare import where_it_lives
 from .extensions import fit_extensions, keep_fits
 from .margins import MIN_EXCESS
+from .report import diagnosis_json
 from .screening import column, linearise, predicted_gain
 from .session import Fitted, Session
 from .spec import Model
@@ -165,10 +166,11 @@ def score(base: Fitted, current: Fitted, cand: Fitted, cands: tuple[Candidate, .
     step_base = (current.rms(primary) - e1) / (e0 - floor) if e0 > floor else 0.0
     bar = min(MIN_STEP_FLOOR, 0.5 * (e0 - floor) / floor) if floor > 0 else MIN_STEP_FLOOR
     charge = PENALTY_PER_PARAM * len(added) + MECH_PENALTY * sum(c.kind == "mechanics" for c in cands)
-    return Scored(cands, float(reduction), float(step), float((c0 - c1) / floor) if floor > 0 else 0.0, float(step_base),
-                  float(bar),
-                  float(step - charge), float(e1), consistency(d, rec), len(added), new,
-                  {k: v for k, v in cand.fit.std.items() if k in new}, gain, cand)
+    return Scored(cands=cands, reduction=float(reduction), step_reduction=float(step),
+                  step_floor=float((c0 - c1) / floor) if floor > 0 else 0.0, step_base=float(step_base),
+                  floor_bar=float(bar), score=float(step - charge), error=float(e1), t_stat=consistency(d, rec),
+                  params_added=len(added), values=new, std={k: v for k, v in cand.fit.std.items() if k in new},
+                  predicted_gain=gain, fitted=cand)
 
 
 def passes(s: Scored) -> bool:
@@ -301,66 +303,8 @@ class Diagnosis:
         return (e0 - e1) / (e0 - self.floor) if e0 > self.floor else 0.0
 
     def as_json(self, session: Session) -> dict:
-        primary = session.primary
-        unit = session.m.units[primary]
-        best = self.sequence[0] if self.sequence else None
-        final = self.promised
-        e0 = self.base.rms(primary)
-        verdict = {v.cand: v for v in self.verdicts}
-        flagged = session.win.transient if session.win.transient is not None else np.zeros(session.win.starts.size, bool)
-        out = {
-            "data": session.source,
-            "filled_samples": session.rec.meta.get("filled", {}),
-            "start_from_data": session.law_guess,
-            "outliers": {k: int(v.size) for k, v in session.m.outliers.items()},
-            "averaged": session.m.averaged,  # the file's samples per compared sample (block means to the model's step)
-            "model": self.base.model.describe(),
-            "error": e0,
-            "error_unit": unit,
-            "error_signal": primary,
-            "noise_floor": self.floor,
-            "excess": e0 - self.floor,
-            "missing_effect_found": self.found,
-            "best": best.cands[0].phenomenon if (best and self.found) else None,
-            "best_form": best.cands[0].form if (best and self.found) else None,
-            "summary": self.summary,
-            "sequence": [{"effect": c.phenomenon, "form": c.form, "label": c.label, "step_reduction": s.step_reduction,
-                          "reduction": s.reduction, "consistency_z": s.t_stat, "error": s.error, "values": s.values,
-                          **({"decided": verdict[c].decided, "margin": verdict[c].weakest.share,
-                              "margin_lower": verdict[c].weakest.lower, "nearest_rival": verdict[c].weakest.rival,
-                              "undecided_with": [m.rival for m in verdict[c].ties]} if c in verdict else {})}
-                         for s in self.sequence for c in s.cands],
-            "named": [v.cand.label for v in self.verdicts if v.decided] if self.found else [],
-            "undecided": [{"between": [v.cand.label] + [m.rival for m in v.ties],
-                           "margins": [m.as_json() for m in v.ties]} for v in self.verdicts if v.ties] if self.found else [],
-            "margins": [v.as_json() for v in self.verdicts],
-            "final_model": final.model.describe(),
-            "final_error": final.rms(primary),
-            "final_reduction": self.reduction(final, primary),  # what `model add` + `compare` deliver (delivered_fit)
-            "search_error": e0 - self.search_total * (e0 - self.floor),  # the diagnosis's own fit of the same model
-            "search_reduction": self.search_total,
-            "unexplained": self.rest,
-            "where": self.where,  # error by cycle phase, loading against the drive, ringing (compare.where_it_lives)
-            "candidates": [{"effect": c.effect, "form": c.form, "label": c.label, "reduction": c.reduction,
-                            "step_reduction": c.step_reduction, "score": c.score, "error": c.error,
-                            "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
-                            "std": c.std, "predicted_gain": c.predicted_gain,
-                            "error_without_at_its_values": None if math.isnan(c.error_neutral) else c.error_neutral,
-                            "fit_only": c.fit_only}
-                           for c in self.candidates]
-                          + [{"effect": s.cand.phenomenon, "form": s.cand.form, "label": s.cand.label, "reduction": None,
-                              "predicted_gain": s.predicted_gain, "fitted": False} for s in self.screened],
-            "residual_correlations": self.correlations[:8],
-            "windows": {"length_s": (session.win.length - 1) / session.m.rate,
-                        "fit": int(session.win.select(False).size), "held_out": int(session.win.select(True).size),
-                        "flagged_transient": [float(t) for t in session.window_t(np.flatnonzero(flagged))]},
-            "noise": {"sigma": session.m.sigma, "source": session.m.sigma_source},
-        }
-        sources = getattr(session, "sources", None)
-        if sources and len(sources) > 1:  # several records (MultiSession): each its own windows, noise and floor
-            out["data"] = list(sources)
-            out["records"] = session.records_json(final, self.floors)
-        return out
+        """The diagnosis's JSON (report.diagnosis_json; the demo and the archive ask the diagnosis for it)."""
+        return diagnosis_json(self, session)
 
 
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,

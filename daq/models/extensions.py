@@ -2,7 +2,7 @@
 
 Why forked processes: each extension's fit is an independent multiple-shooting fit of seconds; the session (the
 recording, its windows, the compiled simulators) is inherited by fork, nothing is pickled to the workers, and each
-returns its fit as plain parts (session.portable), so a fit made in a worker and one made here are the same object.
+returns its fit as plain parts (session.Portable), so a fit made in a worker and one made here are the same object.
 Decision records: docs/decisions/0015-diagnosis-forward-selection.md, docs/decisions/0028-margins-and-honest-ties.md.
 """
 
@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+from dataclasses import dataclass
+from functools import partial
 
+from . import forked
 from .candidates import Candidate
-from .session import Fitted, Session, portable
+from .session import Fitted, Portable, Session, portable
 from .spec import Model
 
-_STATE: dict[str, object] = {}
 FLOOR = "(noise floor)"  # the pool's one task that is not a fit
 
 
@@ -25,14 +27,30 @@ def _extend(model: Model, cands: tuple[Candidate, ...]) -> Model:
     return model
 
 
-def _fit_task(task) -> tuple:
-    s: Session = _STATE["session"]  # type: ignore[assignment]
-    current: Fitted = _STATE["current"]  # type: ignore[assignment]
+@dataclass
+class Extended:
+    """What a task of the pool sends back: the extension's fit as plain parts, or (the FLOOR task) the noise floor."""
+
+    task: tuple[Candidate, ...] | str
+    fit: Portable | None = None
+    floors: dict[str, float] | None = None
+
+
+@dataclass
+class Work:
+    """What every task of one pool works on (inherited by the forked workers: forked.py)."""
+
+    session: Session
+    current: Fitted
+    root: Model
+    cold: dict[str, float] | None
+
+
+def _fit_task(work: Work, task: tuple[Candidate, ...] | str) -> Extended:
     if task == FLOOR:
-        return task, s.noise_floor(current)
-    root: Model = _STATE["root"]  # type: ignore[assignment]
-    f = s.fit(_extend(root, task), warm=current, cold=_STATE.get("cold"))  # type: ignore[arg-type]
-    return task, portable(f)
+        return Extended(task=task, floors=work.session.noise_floor(work.current))
+    f = work.session.fit(_extend(work.root, task), warm=work.current, cold=work.cold)  # type: ignore[arg-type]
+    return Extended(task=task, fit=portable(f))
 
 
 def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidate, ...]], workers: int | None = None,
@@ -51,22 +69,18 @@ def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidat
     workers = workers or min(len(tasks) + (floors is not None), os.cpu_count() or 1)
     out: dict[tuple[Candidate, ...], Fitted] = {}
     if workers > 1 and "fork" in mp.get_all_start_methods():
-        _STATE.update(session=session, current=current, cold=cold, root=root)
-        todo = list(tasks)
+        todo: list = list(tasks)
         if cost:
             todo.sort(key=lambda t: -sum(cost.get(c, 0.0) for c in t))  # stable: equal guesses keep their order
         todo = ([FLOOR] if floors is not None else []) + todo
-        try:
-            with mp.get_context("fork").Pool(workers) as pool:
-                for task, parts in pool.imap_unordered(_fit_task, todo):
-                    if task == FLOOR:
-                        floors.update(parts)  # type: ignore[union-attr]
-                        continue
-                    out[task] = session.restore(parts)
-                    if on_done:
-                        on_done(task)
-        finally:
-            _STATE.clear()
+        with forked.pool(workers, partial(_fit_task, Work(session, current, root, cold))) as pool:
+            for done in pool.imap_unordered(forked.run, todo):
+                if done.floors is not None:
+                    floors.update(done.floors)  # type: ignore[union-attr]
+                    continue
+                out[done.task] = session.restore(done.fit)
+                if on_done:
+                    on_done(done.task)
         return out
     if floors is not None:
         floors.update(session.noise_floor(current))

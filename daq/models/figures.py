@@ -26,17 +26,30 @@ def _pick_windows(session: Session, n: int = 3) -> np.ndarray:
 
 
 def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, title: str = "") -> None:
-    m = session.m
-    primary = session.primary
-    unit = m.units[primary]
+    """compare.png: three windows (early, middle, late), the phase plane, friction against relative velocity, the
+    error by regime and over time, the spectral line of the free run, and the numbers (``result``: compare's JSON)."""
     pr = fitted.problem
     wins = _pick_windows(session)
     vel_all = fitted.start_values()
     shot = pr.shoot(fitted.values, wins, vel_all[wins])
+    sh_all = pr.shoot(fitted.values, session.win.select(None), vel_all)
     fig = plt.figure(figsize=(15, 10), constrained_layout=True)
     gs = fig.add_gridspec(3, 3)
-    # time histories: one panel per window (early, middle, late)
-    sub = gs[0, :2].subgridspec(1, len(wins), wspace=0.08)
+    _window_panels(fig, gs[0, :2], session, fitted, shot, wins)
+    _phase_plane(fig.add_subplot(gs[0, 2]), session, shot, len(wins))
+    _friction_panel(fig.add_subplot(gs[1, 0]), sh_all)
+    _regime_panel(fig.add_subplot(gs[1, 1]), session, result)
+    _time_panel(fig.add_subplot(gs[1, 2]), session, sh_all, result)
+    _spectral_panel(fig.add_subplot(gs[2, :2]), result)
+    _numbers_panel(fig.add_subplot(gs[2, 2]), session, result)
+    fig.suptitle(title or f"{result['model']} vs {Path(result['data']).name}")
+    save_png(fig, path, dpi=90)
+
+
+def _window_panels(fig, cell, session: Session, fitted: Fitted, shot, wins: np.ndarray) -> None:
+    """Time histories: one panel per window (early, middle, late), outliers and repaired spikes marked."""
+    m, primary = session.m, session.primary
+    sub = cell.subgridspec(1, len(wins), wspace=0.08)
     for j, w in enumerate(wins):
         ax = fig.add_subplot(sub[0, j])
         t = m.t[shot.index[j]]
@@ -54,14 +67,17 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
             ax.plot(t[fixed], shot.meas[primary][j][fixed], "o", mfc="none", color="C2", ms=6, label="spike repaired")
         ax.set_xlabel("t [s]")
         if j == 0:
-            ax.set_ylabel(f"{primary} [{unit}]")
+            ax.set_ylabel(f"{primary} [{m.units[primary]}]")
             ax.legend(loc="best", fontsize=7)
         ax.set_title(("early", "middle", "late")[j] if len(wins) == 3 else f"window {w}", fontsize=9)
-    # phase plane
-    ax = fig.add_subplot(gs[0, 2])
+
+
+def _phase_plane(ax, session: Session, shot, n_wins: int) -> None:
+    m, primary = session.m, session.primary
+    unit = m.units[primary]
     xs = m.outputs[primary]
     vd = sg(xs, m.rate, 0.006 if m.rate >= 500 else 1.5 / m.rate, 1)
-    for j in range(len(wins)):
+    for j in range(n_wins):
         ii = shot.index[j]
         ax.plot(xs[ii], vd[ii], "k-", lw=0.6, alpha=0.7, label="measured" if j == 0 else None)
         pv = np.gradient(shot.pred[primary][j], 1.0 / m.rate)
@@ -70,10 +86,10 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax.set_ylabel(f"d{primary}/dt [{unit}/s]")
     ax.set_title("phase plane")
     ax.legend(fontsize=8)
-    # friction vs relative velocity, both branches
-    ax = fig.add_subplot(gs[1, 0])
-    allw = session.win.select(None)
-    sh_all = pr.shoot(fitted.values, allw, vel_all)
+
+
+def _friction_panel(ax, sh_all) -> None:
+    """Friction against relative velocity along every window, both branches."""
     v = sh_all.aux[..., AUX.V_REL].ravel()
     F = sh_all.aux[..., AUX.F].ravel()
     dv = np.gradient(np.abs(sh_all.aux[..., AUX.V_REL]), axis=1).ravel()
@@ -83,19 +99,23 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax.set_ylabel("friction force [N]")
     ax.set_title("friction vs relative velocity (model, along the windows)")
     ax.legend(fontsize=7, markerscale=6)
-    # residual by regime
-    ax = fig.add_subplot(gs[1, 1])
+
+
+def _regime_panel(ax, session: Session, result: dict) -> None:
     names = list(result["by_regime"])
     vals = [result["by_regime"][k]["error"] for k in names]
     ax.barh(names, vals, color=["C3" if k == result["worst_regime"] else "C0" for k in names])
     ax.axvline(result["noise_floor"], color="k", ls="--", label="noise floor")
-    ax.set_xlabel(f"rms error [{unit}]")
+    ax.set_xlabel(f"rms error [{session.m.units[session.primary]}]")
     ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))  # (plain metres overlapped: 0.0000250000)
     ax.set_title("error by regime")
     ax.legend(fontsize=8)
     ax.tick_params(axis="y", labelsize=8)
-    # residual over time
-    ax = fig.add_subplot(gs[1, 2])
+
+
+def _time_panel(ax, session: Session, sh_all, result: dict) -> None:
+    """Each window's rms error over time: fit, held-out and flagged windows."""
+    m, primary = session.m, session.primary
     ms = np.sqrt(np.mean((sh_all.pred[primary][:, 1:] - sh_all.meas[primary][:, 1:]) ** 2, axis=1))
     tw = m.t[session.win.starts]
     fitw, heldw = session.win.select(False), session.win.select(True)
@@ -107,11 +127,13 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
     ax.set_yscale("log")
     ax.axhline(result["noise_floor"], color="k", ls="--", label="noise floor")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel(f"rms error [{unit}]")
+    ax.set_ylabel(f"rms error [{m.units[primary]}]")
     ax.set_title("error over time")
     ax.legend(fontsize=8)
-    # forward simulation: spectral line, invariants
-    ax = fig.add_subplot(gs[2, :2])
+
+
+def _spectral_panel(ax, result: dict) -> None:
+    """The free run's strongest spectral line over time against the record's."""
     sl = result.get("spectral_line")
     if sl:
         ax.plot(sl["t"], sl["measured_Hz"], "k.-", label="measured")
@@ -120,21 +142,22 @@ def compare_figure(session: Session, fitted: Fitted, result: dict, path: Path, t
         ax.set_xlabel("t [s]")
         ax.legend(fontsize=8)
     ax.set_title("spectrogram line (window 512, overlap 256, 100 Hz, as paper 001)")
-    ax = fig.add_subplot(gs[2, 2])
+
+
+def _numbers_panel(ax, session: Session, result: dict) -> None:
+    unit = session.m.units[session.primary]
     ax.axis("off")
     lines = [f"error {result['error']:.3g} {unit} (noise floor {result['noise_floor']:.3g})",
              f"(on held-out windows; all windows {result['error_all_windows']:.3g})",
              f"loss {result['loss']}; samples counted linearly {sum(result['loss_capped'].values())}",
-             f"spikes repaired {sum(result['outliers'].values())}; "
-             f"> {OUTLIER_SIGMAS:g} noise levels off {sum(result['residual_outliers'].values())}", ""]
+             (f"spikes repaired {sum(result['outliers'].values())}; "
+              f"> {OUTLIER_SIGMAS:g} noise levels off {sum(result['residual_outliers'].values())}"), ""]
     for k, d in result["invariants"].items():
         lines.append(f"{k}: measured {d['measured']:.4g}, model {d['model']:.4g}")
     lines.append("")
     for k, d in result["by_signal"].items():
         lines.append(f"{k}: {d['error']:.3g} {d['unit']} (floor {d['noise_floor']:.3g})")
     ax.text(0, 1, "\n".join(lines), va="top", family="monospace", fontsize=8)
-    fig.suptitle(title or f"{result['model']} vs {Path(result['data']).name}")
-    save_png(fig, path, dpi=90)
 
 
 def spectrogram_figure(session: Session, drawn: Drawn, path: Path) -> None:

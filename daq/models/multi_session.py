@@ -20,9 +20,10 @@ from daq.io.interchange import Recording
 from . import robust
 from .build import Builder
 from .session import Fitted, Session
-from .shooting import WINDOW_CYCLES, Problem, ShootingFit, cycle_period, make_windows
+from .shooting import Problem, ShootingFit
 from .spec import Model, drive_source
 from .stacked import StackedProblem, StackedWindows
+from .windows import WINDOW_CYCLES, cycle_period, make_windows
 
 MAX_WINDOWS = 90  # in all: each of n records cuts max(MIN_RECORD_WINDOWS, MAX_WINDOWS // n)
 MIN_RECORD_WINDOWS = 30

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .candidates import Candidate
+from .lm import start_jacobian
 from .session import Fitted, Session
-from .shooting import start_jacobian
 
 MIN_STEP = 1e-3  # finite-difference step of a strength, relative to its range (or value, for mechanics)
 

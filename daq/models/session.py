@@ -11,9 +11,8 @@ docs/decisions/0029-clock-jitter-in-the-floor.md.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import os
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +24,12 @@ from daq.io.loading import load_data
 from daq.physics.effects import CATALOG, TAIL
 from daq.signals import timing_noise
 
-from . import robust
+from . import forked, robust
 from .build import Builder
 from .data import Measured, RigData, rig_data
-from .shooting import Problem, ShootingFit, Windows, make_windows, window_weights
+from .shooting import Problem, ShootingFit
 from .spec import STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
+from .windows import Windows, make_windows, window_weights
 
 MIN_CONTINUATION = 8  # samples
 PROBE_ITER = 5  # iterations each start gets before the best one goes on
@@ -94,25 +94,33 @@ class Fitted:
         return vel if windows is None else vel[windows]
 
 
-def portable(f: Fitted) -> tuple:
+@dataclass
+class Portable:
     """A fit as plain parts a forked process can send back (Session.restore makes it a Fitted again): the model as
-    fitted and as it was given (its Problem is rebuilt from it), values, both ShootingFits, the window errors and
-    the window and sample weights the fit settled on."""
-    return (f.problem.builder.model, f.model, f.values, f.fit, f.held, f.ms_held, f.ms_fit, f.problem.weights,
-            f.problem.sample_weights)
+    given (its Problem is rebuilt from it) and as fitted, values, both ShootingFits, the window errors and the window
+    and sample weights the fit settled on."""
+
+    given: Model
+    model: Model
+    values: dict[str, float]
+    fit: ShootingFit
+    held: ShootingFit
+    ms_held: dict[str, np.ndarray]
+    ms_fit: dict[str, np.ndarray]
+    weights: np.ndarray | None
+    sample_weights: np.ndarray | None
 
 
-_CHAIN: dict[str, object] = {}  # what a forked process of Session._fit_own needs (fork: nothing is pickled to it)
+def portable(f: Fitted) -> Portable:
+    """The fit ``f`` as Portable parts."""
+    return Portable(given=f.problem.builder.model, model=f.model, values=f.values, fit=f.fit, held=f.held,
+                    ms_held=f.ms_held, ms_fit=f.ms_fit, weights=f.problem.weights,
+                    sample_weights=f.problem.sample_weights)
 
 
-def _joint_task(_: int) -> tuple:
-    s: Session = _CHAIN["session"]  # type: ignore[assignment]
-    return portable(s._fit_warm(*_CHAIN["args"], restart=True))  # type: ignore[misc]
-
-
-def _can_fork() -> bool:
-    return ((os.cpu_count() or 1) > 1 and "fork" in mp.get_all_start_methods()
-            and not mp.current_process().daemon)  # a pool's worker may not have children
+def _joint_task(session: Session, args: tuple, _: object) -> Portable:
+    """The chain's joint path in a forked process (Session._fit_own): ``session`` and ``args`` inherited by fork."""
+    return portable(session._fit_warm(*args, restart=True))
 
 
 class Session:
@@ -199,14 +207,13 @@ class Session:
             cold = cold or dict(self.problem(model).builder.base_values)
             root = self.fit(chain[0], max_iter=max_iter, converge=converge)
             pool, job = None, None
-            if len(chain) >= 2 and _can_fork():
-                _CHAIN.update(session=self, args=(model, root, cold, max_iter, converge))
-                pool = mp.get_context("fork").Pool(1)
-                job = pool.apply_async(_joint_task, (0,))
+            if len(chain) >= 2 and forked.can_fork():
+                pool = forked.pool(1, partial(_joint_task, self, (model, root, cold, max_iter, converge)))
+                job = pool.apply_async(forked.run, (None,))
             try:
                 warm = root
-                for partial in chain[1:]:
-                    warm = self._fit_warm(partial, warm, cold, max_iter, converge, restart=True)
+                for link in chain[1:]:
+                    warm = self._fit_warm(link, warm, cold, max_iter, converge, restart=True)
                 seq = self._fit_warm(model, warm, cold, max_iter, converge, restart=True)
                 if len(chain) < 2:
                     return seq
@@ -216,7 +223,6 @@ class Session:
                 if pool is not None:
                     pool.terminate()
                     pool.join()
-                _CHAIN.clear()
             return joint if joint.fit.cost < seq.fit.cost else seq
         return self._fit_warm(model, None, cold, max_iter, converge)
 
@@ -231,7 +237,39 @@ class Session:
         free = model.free_names()
         bounds = {n: (params[n].lo if params[n].lo is not None else -np.inf,
                       params[n].hi if params[n].hi is not None else np.inf) for n in free}
-        file_values = dict(pr.builder.base_values)
+        starts, nested, new = self._starts(model, dict(pr.builder.base_values), bounds, warm, cold, restart)
+        fw, hw = self.win.select(False), self.win.select(True)
+        if warm is not None and warm.problem.weights is not None:
+            pr.weights = warm.problem.weights.copy()  # the same windows count as in the fit it extends
+        res = self._fit_from(pr, starts, free, bounds, fw, max_iter, reweight=warm is None, converge=converge)
+        extends = warm is not None and set(warm.model.free_names()) <= set(free)  # (not a model with less)
+        if nested is not None and extends and res.cost > warm.fit.cost * (1.0 + 1e-9):
+            again = self._fit_from(pr, [nested], free, bounds, fw, max_iter, converge=converge)
+            res = again if again.cost < res.cost else res
+        if restart and extends and cold and new and res.cost < RESTART_GAIN * warm.fit.cost:
+            res = self._restart_cold(pr, res, cold, new, free, bounds, fw, max_iter, converge)
+        stalled = self._stalled(res, starts, free, bounds)
+        if stalled:
+            kick = {}
+            for k in stalled:
+                lo, hi = bounds[k]
+                span = (hi - lo) if np.isfinite(hi - lo) else max(abs(res.values[k]), 1.0)
+                kick[k] = float(np.clip(res.values[k] + 0.05 * span, lo, hi))
+            again = self._fit_from(pr, [({**res.values, **kick}, res.start_values)], free, bounds, fw, max_iter,
+                                   converge=converge)
+            if again.cost < res.cost:
+                res = again
+            res.message += f"; stalled in {', '.join(stalled)}: restarted"
+        self._better_starts(pr, res, fw)
+        held, ms_held = self.held_out(pr, res.values) if hw.size else (res, {})
+        fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
+        return Fitted(fitted_model, res.values, res, held, pr, ms_held,
+                      pr.window_errors(res.values, fw, res.start_values))
+
+    def _starts(self, model: Model, file_values: dict[str, float], bounds: dict, warm: Fitted | None,
+                cold: dict[str, float] | None, restart: bool) -> tuple[list, tuple | None, set[str]]:
+        """_fit_warm's starts (values, start values or None: the data's), each once; the nested start (``warm``'s
+        fitted values, the new parameters at the file's) and the new parameters' names."""
         moved = strength_starts(model, file_values)
         starts: list[tuple[dict[str, float], np.ndarray | None]] = []
         if warm is None:  # (with a warm fit the file's values are the ``cold`` start below: the same starts
@@ -275,41 +313,18 @@ class Session:
         unique: dict[tuple, tuple] = {}
         for values, vel in starts:
             unique[tuple(sorted(values.items()))] = (values, vel)
-        starts = list(unique.values())
-        fw, hw = self.win.select(False), self.win.select(True)
-        if warm is not None and warm.problem.weights is not None:
-            pr.weights = warm.problem.weights.copy()  # the same windows count as in the fit it extends
-        res = self._fit_from(pr, starts, free, bounds, fw, max_iter, reweight=warm is None, converge=converge)
-        extends = warm is not None and set(warm.model.free_names()) <= set(free)  # (not a model with less)
-        if nested is not None and extends and res.cost > warm.fit.cost * (1.0 + 1e-9):
-            again = self._fit_from(pr, [nested], free, bounds, fw, max_iter, converge=converge)
-            res = again if again.cost < res.cost else res
-        if restart and extends and cold and new and res.cost < RESTART_GAIN * warm.fit.cost:
-            res = self._restart_cold(pr, res, cold, new, free, bounds, fw, max_iter, converge)
-        stalled = self._stalled(res, starts, free, bounds)
-        if stalled:
-            kick = {}
-            for k in stalled:
-                lo, hi = bounds[k]
-                span = (hi - lo) if np.isfinite(hi - lo) else max(abs(res.values[k]), 1.0)
-                kick[k] = float(np.clip(res.values[k] + 0.05 * span, lo, hi))
-            again = self._fit_from(pr, [({**res.values, **kick}, res.start_values)], free, bounds, fw, max_iter,
-                                   converge=converge)
-            if again.cost < res.cost:
-                res = again
-            res.message += f"; stalled in {', '.join(stalled)}: restarted"
-        # A joint LM step can throw one window's start values into a poor local minimum that the
-        # global cost hides; re-fit every fit window's start values from the data (parameters fixed, as
-        # for held-out windows) and keep, per window, the better of the two.
+        return list(unique.values()), nested, new
+
+    @staticmethod
+    def _better_starts(pr: Problem, res: ShootingFit, fw: np.ndarray) -> None:
+        """A joint LM step can throw one window's start values into a poor local minimum that the global cost
+        hides; re-fit every fit window's start values from the data (parameters fixed, as for held-out windows)
+        and keep, per window, the better of the two (the loss's sample weights settled there)."""
         again = pr.fit_starts(res.values, fw, max_iter=25)
         e_joint = pr.window_costs(res.values, fw, res.start_values)
         e_again = pr.window_costs(res.values, fw, again.start_values)
         res.start_values = np.where((e_again < e_joint)[:, None], again.start_values, res.start_values)
         pr.settle_weights(res.values, fw, res.start_values)
-        held, ms_held = self.held_out(pr, res.values) if hw.size else (res, {})
-        fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
-        return Fitted(fitted_model, res.values, res, held, pr, ms_held,
-                      pr.window_errors(res.values, fw, res.start_values))
 
     def effect_starts(self, model: Model, values: dict[str, float], bounds: dict) -> dict[str, float]:
         """Starts read from the data (RigData.effect_guess) for the model's effects whose strength sits at neutral
@@ -406,12 +421,11 @@ class Session:
             out.append(k)
         return out
 
-    def restore(self, parts: tuple) -> Fitted:
+    def restore(self, parts: Portable) -> Fitted:
         """A Fitted from portable()'s parts, on this session's windows."""
-        given, model, values, fit, held, ms_held, ms_fit, weights, sample_weights = parts
-        pr = self.problem(given)
-        pr.weights, pr.sample_weights = weights, sample_weights
-        return Fitted(model, values, fit, held, pr, ms_held, ms_fit)
+        pr = self.problem(parts.given)
+        pr.weights, pr.sample_weights = parts.weights, parts.sample_weights
+        return Fitted(parts.model, parts.values, parts.fit, parts.held, pr, parts.ms_held, parts.ms_fit)
 
     def weighted(self, ms: dict[str, np.ndarray], windows: np.ndarray) -> np.ndarray:
         """Per window (``windows``: the session's windows ``ms`` holds, in order): the mean-square error of all

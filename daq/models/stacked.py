@@ -15,7 +15,8 @@ import numpy as np
 
 from daq.errors import InputError
 
-from .shooting import Problem, Shot, Windows
+from .shooting import Problem, Shot
+from .windows import Windows
 
 
 @dataclass
