@@ -14,7 +14,7 @@ Dimensional form of eq. (1) per mass, chain wall-k-m1-k-m2-k-m3 (free last mass)
 which is eq. (3) after the scaling (2): x = K X / F0, t = tau / sqrt(M/K), d = D / sqrt(K M).
 A spring-slider (mechanics.driven = "spring": the chain's far end driven at v_b, the track fixed) is the same
 chain in the driver's frame plus the frame's acceleration, + M v_b' on the right (zero at a constant speed).
-Static limit: f_s = f_s0 * static_factor(t_s, Delta) where t_s is the time stuck and
+Static limit: f_s = f_s0 * effects.peak_factor(t_s, Delta) where t_s is the time stuck and
 Delta = d(friction needed)/dt while stuck (for one mass on a constant belt, K S: the paper's Delta).
 
 Decision records: docs/decisions/0011-fixed-step-rk4-smooth-laws.md; the drop after adhesion loss only, a driven
@@ -28,22 +28,13 @@ from enum import IntEnum
 
 import numpy as np
 
-from .contact import AUX, N_AUX
-from .effects import (
-    TAIL,
-    E,
-    accel_sign_weight,
-    aging_log,
-    arrhenius_factor,
-    drive_speed,
-    env_rates,
-    ramp_eval_side,
-    static_factor,
-    temperature_factor,
-)
+from . import effects
+from .contact import N_AUX, set_aux
+from .effects import TAIL, E, accel_sign_weight
 from .friction import f_pwl_piece
 from .jit import helper, kernel
-from .rsf import AGING, SLIP as SLIP_LAW, state_rate
+from .rsf import AGING, state_rate
+from .rsf import SLIP as SLIP_LAW
 
 RIG_ID = "belt-ndof"
 SLIP = 0.0
@@ -125,10 +116,7 @@ def chain_at(x, i, n, k):
 def drive(t, s, tail, e, rt, rv, left):
     """Commanded and actual belt speed for state s: (v_cmd, v, dv/dt); ``left``: the programme's slope from the
     left at a corner (the last stage of a step that ends there)."""
-    v_cmd, dv_cmd = ramp_eval_side(rt, rv, t, left)
-    v, dv = drive_speed(v_cmd, dv_cmd, s[tail + TAIL.VLAG], s[tail + TAIL.POS], e[E.VB_TAU], e[E.VB_RIPPLE],
-                        e[E.VB_WAVELEN])
-    return v_cmd, v, dv
+    return effects.drive_at(t, s[tail + TAIL.VLAG], s[tail + TAIL.POS], e, rt, rv, left)
 
 
 @helper
@@ -169,8 +157,7 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region, left=False):
     # seen from a driven spring end, a change of drive speed is a frame acceleration: +M V' on every mass (a mass
     # stuck to the fixed track then needs no friction for it), see docs/examples/spring-slider.md
     frame = p[P.SPRING_DRIVEN]
-    temp = s[tail + TAIL.TEMP]
-    tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
+    tf = effects.mu_factor(s[tail + TAIL.TEMP], e)
     a_d, f_k0, k_f, w_m, k_r = p[P.ALPHA_DROP], p[P.F_K0], p[P.K_FALL], p[P.W_MIN], p[P.K_RISE]
     rs_a, v_ref = (e[E.RS_A], e[E.RS_VREF]) if e[E.RS_DC] > 0.0 else (0.0, 1.0)
     rs_state = state_term(s, tail, e)
@@ -192,8 +179,10 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region, left=False):
             fsb = hs[H.FS_BREAK, i] if hs[H.DROP, i] != 0.0 else -math.inf
             # rate-and-state (one mass): the direct effect in the slip speed, the state's term along the slip
             rs = sg * rs_state + (rs_a * math.asinh(w * vu / (2.0 * v_ref)) if rs_a != 0.0 else 0.0)
-            fp = sg * f_pwl_piece(u, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w + rs
-            fm = sg * f_pwl_piece(u, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp) * tf + e[E.VS_D] * w + rs
+            law_p = sg * f_pwl_piece(u, 1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp)
+            law_m = sg * f_pwl_piece(u, -1.0, fsb, a_d, f_k0, k_f, w_m, k_r, amp)
+            fp = effects.with_speed_terms(law_p, tf, w, e) + rs
+            fm = effects.with_speed_terms(law_m, tf, w, e) + rs
             ap = (F0 * fp - damp * vi - kx) / M + frame * dvb
             am = (F0 * fm - damp * vi - kx) / M + frame * dvb
             wsel = 1.0 if fp == fm else accel_sign_weight(-sg, ap, am, dvb)
@@ -207,14 +196,9 @@ def rhs(t, s, hs, p, e, rt, rv, ds, fric, region, left=False):
             branch = 0 if wsel == 1.0 else (1 if wsel == -1.0 else 2)
             region[i] = 1 + above_min + 2 * on_drop + 4 * branch
         power += fric[i] * (vb - vi)
-    ds[tail + TAIL.TS] = 0.0  # stick clocks are exact event times, kept in hs
-    ds[tail + TAIL.Q] = 0.0
-    ds[tail + TAIL.PSI] = state_speed_rate(s, hs, tail, vb, e)
-    d_temp, d_lag, d_pos = env_rates(power, v_cmd, vb, t, s[tail + TAIL.TEMP], s[tail + TAIL.VLAG], e[E.T_AMB],
-                                     e[E.TH_DRIFT], e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])
-    ds[tail + TAIL.TEMP] = d_temp
-    ds[tail + TAIL.VLAG] = d_lag
-    ds[tail + TAIL.POS] = d_pos
+    # stick clocks are exact event times, kept in hs: no clock or load-rate rates here
+    env = effects.environment_rates(power, v_cmd, vb, t, s[tail + TAIL.TEMP], s[tail + TAIL.VLAG], e)
+    effects.set_tail(ds, tail, 0.0, 0.0, state_speed_rate(s, hs, tail, vb, e), env)
     return v_cmd, vb, dvb
 
 
@@ -310,8 +294,7 @@ def _step(t, s, h, k1, hs, p, e, rt, rv, out, wk, fric, region):
 
 @kernel
 def _static_limit(ts, q, p, e):
-    return p[P.F_S0] * (static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
-                        + aging_log(ts, e[E.ST_LOG_GAIN], e[E.ST_TAU]))
+    return p[P.F_S0] * effects.peak_factor(ts, q, e)
 
 
 @kernel
@@ -410,6 +393,47 @@ def _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region):
             hs[H.SLIP_DIR, i] = 1.0 if need > 0.0 else -1.0
 
 
+@helper
+def _locate_event(t, s, h, k1, hs, p, e, rt, rv, trial, wk, ds, fric, region, flags, soft, k_end, region_end):
+    """An event fired within the step h from (t, s): bisect the step's fraction down to EVENT_TOL and step to the
+    bracket's far end. Returns the step taken; trial holds the state there and flags its events."""
+    lo = 0.0
+    hi = 1.0
+    while (hi - lo) > EVENT_TOL:
+        mid = 0.5 * (lo + hi)
+        _step(t, s, mid * h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
+        if _events(t + mid * h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end):
+            hi = mid
+        else:
+            lo = mid
+    h = hi * h
+    _step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
+    _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end)
+    return h
+
+
+@helper
+def _check_chatter(n_hard, n_events, k):
+    """Stop a contact that switches without end (see MAX_HARD_EVENTS, MAX_EVENTS_PER_OUTPUT)."""
+    if n_hard > MAX_HARD_EVENTS:  # a contact flipping without time advancing
+        raise RuntimeError("belt-ndof: contact chatters (over 10000 stick/slip switches in one output interval)")
+    if n_events > MAX_EVENTS_PER_OUTPUT * (k + 1) + 100:  # so far, not by the window's end
+        raise RuntimeError("belt-ndof: contact chatters (over 20 stick/slip switches per output sample)")
+
+
+@helper
+def _record(k, t, s, hs, p, e, rt, rv, ds, fric, region, states, auxs, frics, modes_out):
+    """Output sample k at (t, s): the state, the friction on each mass, the modes, and aux of mass 1."""
+    n = int(p[P.N])
+    rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
+    states[k] = s
+    frics[k] = fric
+    modes_out[k] = hs[H.MODE]
+    v_cmd, vb, _ = drive(t, s, 2 * n, e, rt, rv, False)
+    # aux in the common convention: F = mu(V_rel) N with V_rel = body - drive, force on body = -F
+    set_aux(auxs[k], -fric[0], p[P.F0], -fric[0] / p[P.F0], vb, v_cmd, s[n] - vb, p[P.F0], ds[n])
+
+
 @kernel
 def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     """Hybrid integration from s0 at t0; returns states, aux (mass 1), friction per mass, modes, n_events.
@@ -419,7 +443,6 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
     """
     n = int(p[P.N])
     ns = s0.size
-    tail = 2 * n
     states = np.empty((n_out, ns))
     auxs = np.zeros((n_out, N_AUX))
     frics = np.empty((n_out, n))
@@ -461,20 +484,8 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
                 h = rt[kink] - t  # ends on the corner exactly (rounding must not leave it a hair to either side)
             _step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
             if _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end):
-                lo = 0.0
-                hi = 1.0
-                while (hi - lo) > EVENT_TOL:
-                    mid = 0.5 * (lo + hi)
-                    _step(t, s, mid * h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
-                    if _events(t + mid * h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end,
-                               region_end):
-                        hi = mid
-                    else:
-                        lo = mid
-                h = hi * h
-                _step(t, s, h, k1, hs, p, e, rt, rv, trial, wk, fric, region)
-                _events(t + h, trial, hs, p, e, rt, rv, ds, fric, region, flags, soft, k_end, region_end)
-                t += h
+                t += _locate_event(t, s, h, k1, hs, p, e, rt, rv, trial, wk, ds, fric, region, flags, soft, k_end,
+                                   region_end)
                 s[:] = trial
                 hard = False
                 for i in range(n):
@@ -483,10 +494,7 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
                     _switch(t, s, hs, flags, p, e, rt, rv, ds, fric, region)
                     n_events += 1
                     n_hard += 1
-                    if n_hard > MAX_HARD_EVENTS:  # a contact flipping without time advancing
-                        raise RuntimeError("belt-ndof: contact chatters (over 10000 stick/slip switches in one output interval)")
-                    if n_events > MAX_EVENTS_PER_OUTPUT * (k + 1) + 100:  # so far, not by the window's end
-                        raise RuntimeError("belt-ndof: contact chatters (over 20 stick/slip switches per output sample)")
+                    _check_chatter(n_hard, n_events, k)
                 else:
                     n_soft += 1
             else:
@@ -496,20 +504,7 @@ def simulate(s0, t0, dt, n_sub, n_out, p, e, rt, rv, hs):
                     k1[:] = k_end
                     region1[:] = region_end
                     have_k1 = True
-        _, vb, _ = rhs(t, s, hs, p, e, rt, rv, ds, fric, region)
-        states[k] = s
-        frics[k] = fric
-        modes_out[k] = hs[H.MODE]
-        v_cmd, vb, _ = drive(t, s, tail, e, rt, rv, False)
-        # aux in the common convention: F = mu(V_rel) N with V_rel = body - drive, force on body = -F
-        auxs[k, AUX.F] = -fric[0]
-        auxs[k, AUX.N] = p[P.F0]
-        auxs[k, AUX.MU] = -fric[0] / p[P.F0]
-        auxs[k, AUX.V_DRIVE] = vb
-        auxs[k, AUX.V_CMD] = v_cmd
-        auxs[k, AUX.V_REL] = s[n] - vb
-        auxs[k, AUX.N_INST] = p[P.F0]
-        auxs[k, AUX.ACC] = ds[n]
+        _record(k, t, s, hs, p, e, rt, rv, ds, fric, region, states, auxs, frics, modes_out)
     return states, auxs, frics, modes_out, n_events
 
 

@@ -16,27 +16,9 @@ import numpy as np
 from scipy import optimize
 from scipy.linalg import eigh
 
-from .contact import AUX, N_AUX
-from .effects import (
-    DC_MIN,
-    N_E,
-    TAIL,
-    E,
-    accel_sign_weight,
-    aging_log,
-    arrhenius_factor,
-    body_accel_factor,
-    dieterich_rate,
-    drive_speed,
-    env_rates,
-    normal_load,
-    ramp_eval,
-    smooth_sign,
-    static_factor,
-    stick_rates_if_read,
-    temperature_factor,
-    user_mu_factor,
-)
+from . import effects
+from .contact import N_AUX, set_aux
+from .effects import N_E, TAIL, E, smooth_sign, user_mu_factor
 from .friction import mu_brake
 from .jit import helper, kernel
 
@@ -79,74 +61,41 @@ def lambda_r(y1, r, lam0):
 
 @kernel
 def rhs(t, s, p, e, rt, rv, ds, aux):
-    """Eqs. (5a), (5b), (6), (7) with the effects of the catalog; fills ds and aux."""
+    """Eqs. (5a), (5b), (6), (7) with the effects of the catalog (effects.py's chain); fills ds and aux."""
     m, r, k1, k2, k3, g = p[P.m], p[P.r], p[P.k1], p[P.k2], p[P.k3], p[P.g]
     x1, x2, y1, y2 = s[0], s[1], s[2], s[3]
-    ts, q, temp = s[N_MECH + TAIL.TS], s[N_MECH + TAIL.Q], s[N_MECH + TAIL.TEMP]
-    v_lag, pos = s[N_MECH + TAIL.VLAG], s[N_MECH + TAIL.POS]
-    gw, c1, c2, amp = e[E.GEO_WEIGHT], e[E.C1], e[E.C2], e[E.AS_AMP]
+    ts, q, temp, v_lag, pos = effects.contact_tail(s, N_MECH)
+    gw, c1, c2 = e[E.GEO_WEIGHT], e[E.C1], e[E.C2]
 
-    v_cmd, dv_cmd = ramp_eval(rt, rv, t)
-    vb, dvb = drive_speed(v_cmd, dv_cmd, v_lag, pos, e[E.VB_TAU], e[E.VB_RIPPLE], e[E.VB_WAVELEN])
+    v_cmd, vb, dvb = effects.drive_at(t, v_lag, pos, e, rt, rv, False)
     v_rel = x2 - vb
 
     inv_m, inv_r = p[P.INV_m], p[P.INV_r]
     d3 = y1 + gw * x1 * x1 * 0.5 * inv_r  # elongation of k3, eq. (1c)
     grav = gw * p[P.M] * g * lambda_r(y1, r, p[P.lam0])
     n_inst = m * g + grav - k3 * d3 - c2 * y2  # eq. (6) divided by mu
-    n = normal_load(n_inst, p[P.N_NOM], e[E.NL_WEIGHT])
 
-    sf = static_factor(ts, q, e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0])
-    sf += aging_log(ts, e[E.ST_LOG_GAIN], e[E.ST_TAU])
-    mu = mu_brake(v_rel, p[P.mu0], p[P.gamma], p[P.alpha], p[P.beta] * sf)
-    tf = temperature_factor(temp, e[E.TEMP_COEF], e[E.TEMP_REF]) * arrhenius_factor(temp, e[E.TEMP_ARR], e[E.TEMP_REF])
-    mu = mu * tf + e[E.VS_D] * v_rel
-    mu = mu * user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
-    f = mu * n
+    mu = mu_brake(v_rel, p[P.mu0], p[P.gamma], p[P.alpha], p[P.beta] * effects.peak_factor(ts, q, e))
+    user = user_mu_factor(v_rel, t, temp, pos, ts, e[E.USER0], e[E.USER1], e[E.USER2], e[E.USER3])
+    f, mu, n = effects.friction_force(mu, effects.mu_factor(temp, e), n_inst, p[P.N_NOM], v_rel, user, e)
 
     z2 = x2 + y2
     g_block = -c1 * z2 - (k1 + k2) * x1 - k2 * y1 - gw * k3 * x1 * inv_r * d3  # eq. (5a) without F
-    if amp != 0.0:
-        sg = 1.0 if v_rel > 0.0 else (-1.0 if v_rel < 0.0 else 0.0)
-        w = accel_sign_weight(sg, (g_block - f * (1.0 + amp)) * inv_m, (g_block - f * (1.0 - amp)) * inv_m, dvb)
-        f = f * (1.0 + amp * w)
-        mu = mu * (1.0 + amp * w)
-    amp_b = e[E.AS_BODY_AMP]
-    if amp_b != 0.0:  # the body form: a smooth switch on the block's own acceleration
-        fb = body_accel_factor(g_block, f, inv_m, amp_b, e[E.AS_BODY_A0])
-        f = f * fb
-        mu = mu * fb
+    f, mu = effects.accel_sign(f, mu, g_block, inv_m, v_rel, dvb, e)
     ax = (g_block - f) * inv_m
 
     q_pivot = e[E.BF_TORQUE] * smooth_sign(y2 * inv_r, e[E.BF_EPS])  # Q of eq. (5b)
     ay = (-c1 * z2 - c2 * y2 - k2 * (x1 + y1) - k3 * d3 - grav - q_pivot * inv_r) * p[P.R2_J]
 
     load_rate = (k1 + k2) * x2 + k2 * y2  # rate of the spring load the contact must hold
-    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, abs(e[E.ST_GAIN]) + abs(e[E.ST_LOG_GAIN]), e[E.FR_GAIN],
-                                    e[E.V_STICK],
-                                    e[E.FR_TAU], e[E.ST_RESET])
-    if e[E.ST_DC] > 0.0 and e[E.ST_LOG_GAIN] != 0.0:  # the log form with Dieterich's state for its clock
-        d_ts = dieterich_rate(v_rel, ts, max(e[E.ST_DC], DC_MIN))
-    d_temp, d_lag, d_pos = env_rates(f * v_rel, v_cmd, vb, t, temp, v_lag, e[E.T_AMB], e[E.TH_DRIFT],
-                                     e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU])
+    d_ts, d_q = effects.stick_clock_rates(v_rel, load_rate, ts, q, e)
+    env = effects.environment_rates(f * v_rel, v_cmd, vb, t, temp, v_lag, e)
+    effects.set_tail(ds, N_MECH, d_ts, d_q, 0.0, env)
     ds[0] = x2
     ds[1] = ax
     ds[2] = y2
     ds[3] = ay
-    ds[N_MECH + TAIL.TS] = d_ts
-    ds[N_MECH + TAIL.Q] = d_q
-    ds[N_MECH + TAIL.TEMP] = d_temp
-    ds[N_MECH + TAIL.VLAG] = d_lag
-    ds[N_MECH + TAIL.POS] = d_pos
-    ds[N_MECH + TAIL.PSI] = 0.0  # rate-and-state is belt-ndof's (one mass)
-    aux[AUX.F] = f
-    aux[AUX.N] = n
-    aux[AUX.MU] = mu
-    aux[AUX.V_DRIVE] = vb
-    aux[AUX.V_CMD] = v_cmd
-    aux[AUX.V_REL] = v_rel
-    aux[AUX.N_INST] = n_inst
-    aux[AUX.ACC] = ax
+    set_aux(aux, f, n, mu, vb, v_cmd, v_rel, n_inst, ax)
 
 
 def derive(p: np.ndarray) -> np.ndarray:

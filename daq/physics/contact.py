@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+from .jit import helper
+
 
 class AUX(IntEnum):
     """Slots of the auxiliary output each rig's right-hand side fills at every evaluation."""
@@ -19,3 +21,16 @@ class AUX(IntEnum):
 
 
 N_AUX = len(AUX)
+
+
+@helper
+def set_aux(aux, f, n, mu, v_drive, v_cmd, v_rel, n_inst, acc):
+    """Fill one row of AUX (every rig reports the same quantities, in this order)."""
+    aux[AUX.F] = f
+    aux[AUX.N] = n
+    aux[AUX.MU] = mu
+    aux[AUX.V_DRIVE] = v_drive
+    aux[AUX.V_CMD] = v_cmd
+    aux[AUX.V_REL] = v_rel
+    aux[AUX.N_INST] = n_inst
+    aux[AUX.ACC] = acc

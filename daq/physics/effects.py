@@ -175,26 +175,20 @@ CATALOG: dict[str, EffectSpec] = {
     s.name: s
     for s in [
         EffectSpec(
-            name="normal-load",
+            name="normal-load", seed="001, 002", rigs=("brake-2dof", "drum-pendulum"),
             meaning="friction follows the instantaneous normal load (eq. 6 / thrust gauge), not a constant one",
-            seed="001, 002",
-            rigs=("brake-2dof", "drum-pendulum"),
             params={"*": (_p("weight", E.NL_WEIGHT, "-", 0.0, 0.0, 1.5,
                              "blend from nominal (0) to instantaneous (1) normal load"),)},
         ),
         EffectSpec(
-            name="geometric",
+            name="geometric", seed="001", rigs=("brake-2dof",),
             meaning="geometric nonlinearity and gravity of the angular body",
-            seed="001",
-            rigs=("brake-2dof",),
             params={"*": (_p("weight", E.GEO_WEIGHT, "-", 0.0, 0.0, 1.5,
                              "scales the x1^2/2r spring terms and the angular body's gravity (1 = paper 001)"),)},
         ),
         EffectSpec(
-            name="viscous-damping",
+            name="viscous-damping", seed="000, 001", rigs=ALL_RIGS,
             meaning="viscous terms c1, c2, d",
-            seed="000, 001",
-            rigs=ALL_RIGS,
             params={
                 "brake-2dof": (
                     _p("c1", E.C1, "N s/m", 0.0, 0.0, 1.0, "damper between block and angular body"),
@@ -205,10 +199,8 @@ CATALOG: dict[str, EffectSpec] = {
             },
         ),
         EffectSpec(
-            name="accel-sign",
+            name="accel-sign", seed="000", rigs=ALL_RIGS,
             meaning="kinetic friction differs between accelerating and decelerating relative motion",
-            seed="000",
-            rigs=ALL_RIGS,
             params={"*": (_p("amp", E.AS_AMP, "-", 0.0, -0.5, 0.5,
                              "mu x (1+amp) while |v_rel| grows, mu x (1-amp) while it shrinks"),)},
             default_form="relative",
@@ -222,10 +214,8 @@ CATALOG: dict[str, EffectSpec] = {
                         for rig in ("brake-2dof", "drum-pendulum")})},  # belt-ndof's law has its own branches
         ),
         EffectSpec(
-            name="stick-time",
+            name="stick-time", seed="000", rigs=ALL_RIGS,
             meaning="static (peak) friction grows with adhesion time",
-            seed="000",
-            rigs=ALL_RIGS,
             stateful=True,
             params={"*": (
                 _p("gain", E.ST_GAIN, "-", 0.0, 0.0, 2.0, "relative peak increase after long adhesion"),
@@ -245,10 +235,8 @@ CATALOG: dict[str, EffectSpec] = {
                 )})},
         ),
         EffectSpec(
-            name="force-rate",
+            name="force-rate", seed="000", rigs=ALL_RIGS,
             meaning="static friction depends on the force rate during stick",
-            seed="000",
-            rigs=ALL_RIGS,
             stateful=True,
             params={"*": (
                 _p("gain", E.FR_GAIN, "-", 0.0, 0.0, 2.0, "relative peak increase per e-fold of load rate"),
@@ -256,20 +244,16 @@ CATALOG: dict[str, EffectSpec] = {
             )},
         ),
         EffectSpec(
-            name="bearing-friction",
+            name="bearing-friction", seed="002", rigs=("brake-2dof", "drum-pendulum"),
             meaning="dry friction torque in the pivot bearing",
-            seed="002",
-            rigs=("brake-2dof", "drum-pendulum"),
             params={
                 "brake-2dof": (_p("torque", E.BF_TORQUE, "N m", 0.0, 0.0, 0.05, "dry pivot torque Q"),),
                 "drum-pendulum": (_p("mu1", E.BF_MU1, "-", 0.0, 0.0, 0.5, "reduced bearing coefficient mu1"),),
             },
         ),
         EffectSpec(
-            name="temperature",
+            name="temperature", seed="002", rigs=ALL_RIGS,
             meaning="friction coefficient varies with contact temperature",
-            seed="002",
-            rigs=ALL_RIGS,
             params={"*": (
                 _p("coef", E.TEMP_COEF, "1/K", 0.0, -0.1, 0.1, "relative change of mu per kelvin"),
                 _p("ref", E.TEMP_REF, "degC", 20.0, -50.0, 300.0, "temperature at which mu is nominal"),
@@ -284,10 +268,8 @@ CATALOG: dict[str, EffectSpec] = {
                 )})},
         ),
         EffectSpec(
-            name="belt-speed",
+            name="belt-speed", seed="001", rigs=ALL_RIGS,
             meaning="the belt does not follow the command (ripple, lag); drive the model with measured speed",
-            seed="001",
-            rigs=ALL_RIGS,
             stateful=True,
             params={"*": ()},
             default_form="measured",
@@ -301,11 +283,9 @@ CATALOG: dict[str, EffectSpec] = {
                 )})},
         ),
         EffectSpec(
-            name="rate-and-state",
+            name="rate-and-state", seed="rate-and-state (Dieterich 1979, Ruina 1983)", rigs=("belt-ndof",),
             meaning="friction follows the slip speed's logarithm at once (a) and a contact state that ages at rest "
                     "and renews over a slip Dc (b): rate-and-state with Dieterich's aging law",
-            seed="rate-and-state (Dieterich 1979, Ruina 1983)",
-            rigs=("belt-ndof",),
             stateful=True,
             params={"belt-ndof": _rate_state_params(E.RS_B)},
             default_form="aging",
@@ -319,10 +299,8 @@ CATALOG: dict[str, EffectSpec] = {
                 params={"belt-ndof": _rate_state_params(E.RS_B_SLIP)})},
         ),
         EffectSpec(
-            name="velocity-strengthening",
+            name="velocity-strengthening", seed="002", rigs=ALL_RIGS,
             meaning="friction rises linearly with slip speed (Dv term)",
-            seed="002",
-            rigs=ALL_RIGS,
             params={"*": (_p("D", E.VS_D, "s/m", 0.0, -5.0, 20.0,
                              "mu += D v_rel (belt-ndof: dimensionless f += D w)"),)},
         ),
@@ -564,3 +542,116 @@ def stick_rates_if_read(v_rel: float, load_rate: float, ts: float, q: float, e_s
     if e_st_gain == 0.0 and e_fr_gain == 0.0:
         return 0.0, 0.0
     return stick_rates(v_rel, load_rate, ts, q, v_stick, fr_tau, st_reset)
+
+
+
+# ---------------------------------------------------------------------------
+# The chain (compiled): the effects of one contact, in the one order every rig applies them
+#
+# Why one chain: each rig's rhs calls these steps instead of the terms, so an effect is wired
+# once, here, and reaches brake-2dof, drum-pendulum and belt-ndof alike (record 40). A step
+# takes the effect vector ``e`` and reads its own slots, so a new effect adds no argument to
+# any rig; the rig passes only its mechanics (its law's value, loads, masses) as scalars.
+# Inlined, the steps compile to the code the rigs had written out, in the same floating-point
+# order. Why each step reads its slots before anything else: an inlined helper that still holds
+# an array past a branch or a call pays an atomic reference-count pair per call (see "Terms"),
+# which doubled the smooth rigs' rhs time; so a step that takes an array (e, ds, aux) uses it
+# only in its first lines, and where two steps with branches meet, the rig calls them in turn.
+# The user factor is the rig's own call (daq/models/user_effects.py rebinds it in a copy of
+# the rig's rhs), passed in as ``user``.
+# ---------------------------------------------------------------------------
+
+
+@helper
+def contact_tail(s, off):
+    """The contact's state from the tail at ``off`` of a state vector: (t_s, q, temperature, v_lag, travel)."""
+    return s[off + TAIL.TS], s[off + TAIL.Q], s[off + TAIL.TEMP], s[off + TAIL.VLAG], s[off + TAIL.POS]
+
+
+@helper
+def drive_at(t, v_lag, pos, e, rt, rv, left):
+    """The drive at t: (commanded speed, actual speed, its rate) after belt-speed; ``left`` as in ramp_eval_side."""
+    tau, ripple, wavelen = e[E.VB_TAU], e[E.VB_RIPPLE], e[E.VB_WAVELEN]
+    v_cmd, dv_cmd = ramp_eval_side(rt, rv, t, left)
+    v, dv = drive_speed(v_cmd, dv_cmd, v_lag, pos, tau, ripple, wavelen)
+    return v_cmd, v, dv
+
+
+@helper
+def peak_factor(ts, q, e):
+    """Multiplier on the static (peak) part of a rig's law: stick-time (both forms) and force-rate."""
+    st_gain, st_tau, fr_gain, fr_q0, log_gain = e[E.ST_GAIN], e[E.ST_TAU], e[E.FR_GAIN], e[E.FR_Q0], e[E.ST_LOG_GAIN]
+    return static_factor(ts, q, st_gain, st_tau, fr_gain, fr_q0) + aging_log(ts, log_gain, st_tau)
+
+
+@helper
+def mu_factor(temp, e):
+    """Multiplier on a rig's whole law: temperature (both forms)."""
+    coef, ref, theta = e[E.TEMP_COEF], e[E.TEMP_REF], e[E.TEMP_ARR]
+    return temperature_factor(temp, coef, ref) * arrhenius_factor(temp, theta, ref)
+
+
+@helper
+def with_speed_terms(mu_law, factor, speed, e):
+    """The law after its multiplier ``factor`` (mu_factor) and the terms added in the slip speed:
+    velocity-strengthening (belt-ndof passes its dimensionless w as the speed)."""
+    return mu_law * factor + e[E.VS_D] * speed
+
+
+@helper
+def friction_force(mu_law, factor, n_inst, n_nominal, v_rel, user, e):
+    """The smooth-law rigs' contact (brake-2dof, drum-pendulum): the law's mu through the chain (``factor`` =
+    mu_factor), times the normal load after normal-load. Returns (F, mu, N) before accel-sign."""
+    mu = with_speed_terms(mu_law, factor, v_rel, e) * user
+    n = normal_load(n_inst, n_nominal, e[E.NL_WEIGHT])
+    return mu * n, mu, n
+
+
+@helper
+def accel_sign(f, mu, g_other, inv_mass, v_rel, drive_acc, e):
+    """accel-sign, both forms, on (F, mu). The body's acceleration at the contact is (g_other - F) inv_mass
+    (g_other: every other force, in F's units); ``drive_acc``: the drive's, in the same units."""
+    amp, amp_b, a0 = e[E.AS_AMP], e[E.AS_BODY_AMP], e[E.AS_BODY_A0]
+    if amp != 0.0:
+        sg = 1.0 if v_rel > 0.0 else (-1.0 if v_rel < 0.0 else 0.0)
+        w = accel_sign_weight(sg, (g_other - f * (1.0 + amp)) * inv_mass, (g_other - f * (1.0 - amp)) * inv_mass,
+                              drive_acc)
+        f = f * (1.0 + amp * w)
+        mu = mu * (1.0 + amp * w)
+    if amp_b != 0.0:  # the body form: a smooth switch on the body's own acceleration
+        fb = body_accel_factor(g_other, f, inv_mass, amp_b, a0)
+        f = f * fb
+        mu = mu * fb
+    return f, mu
+
+
+@helper
+def stick_clock_rates(v_rel, load_rate, ts, q, e):
+    """Rates of the stick clock and the remembered load rate (stick-time, force-rate); Dieterich's state
+    for the clock where the log form has a Dc."""
+    st_gain, log_gain, fr_gain, dc = e[E.ST_GAIN], e[E.ST_LOG_GAIN], e[E.FR_GAIN], e[E.ST_DC]
+    v_stick, fr_tau, st_reset = e[E.V_STICK], e[E.FR_TAU], e[E.ST_RESET]
+    d_ts, d_q = stick_rates_if_read(v_rel, load_rate, ts, q, abs(st_gain) + abs(log_gain), fr_gain, v_stick, fr_tau,
+                                    st_reset)
+    if dc > 0.0 and log_gain != 0.0:  # the log form with Dieterich's state for its clock
+        d_ts = dieterich_rate(v_rel, ts, max(dc, DC_MIN))
+    return d_ts, d_q
+
+
+@helper
+def environment_rates(power, v_cmd, v_drive, t, temp, v_lag, e):
+    """Rates of temperature, drive lag and travel (env_rates) from the friction power and the drive."""
+    t_amb, drift, r_th, tau_th, vb_tau = e[E.T_AMB], e[E.TH_DRIFT], e[E.TH_R], e[E.TH_TAU], e[E.VB_TAU]
+    return env_rates(power, v_cmd, v_drive, t, temp, v_lag, t_amb, drift, r_th, tau_th, vb_tau)
+
+
+@helper
+def set_tail(ds, off, d_ts, d_q, d_psi, env):
+    """Fill the contact tail's rates at ``off``: stick clock, load rate, rate-and-state's state, and the three
+    of environment_rates (``env``)."""
+    ds[off + TAIL.TS] = d_ts
+    ds[off + TAIL.Q] = d_q
+    ds[off + TAIL.TEMP] = env[0]
+    ds[off + TAIL.VLAG] = env[1]
+    ds[off + TAIL.POS] = env[2]
+    ds[off + TAIL.PSI] = d_psi

@@ -93,6 +93,16 @@ def _rates(t, mu, psi, rt, rv, j, mu0, a, b, dc, kp, v0, law):
     return kp * (_lp_speed(t, rt, rv, j) - v), state_rate(v, psi, dc, v0, law)
 
 
+@helper
+def _hermite(s, h, y_start, k_start, y_end, k_end):
+    """Cubic Hermite interpolation over an accepted step of h, at the fraction s of it."""
+    h00 = (1.0 + 2.0 * s) * (1.0 - s) ** 2
+    h10 = s * (1.0 - s) ** 2
+    h01 = s * s * (3.0 - 2.0 * s)
+    h11 = s * s * (s - 1.0)
+    return h00 * y_start + h10 * h * k_start + h01 * y_end + h11 * h * k_end
+
+
 @kernel
 def slider_response(t_out, rt, rv, mu_start, psi_start, mu0, a, b, dc, kp, v0, law, rtol):
     """Friction mu(t_out) and state psi(t_out) of the quasi-static spring-slider from (mu_start, psi_start) at
@@ -150,12 +160,8 @@ def slider_response(t_out, rt, rv, mu_start, psi_start, mu0, a, b, dc, kp, v0, l
             t_new = t_stop if last else t + h
             while i_out < n and t_out[i_out] <= t_new:  # cubic Hermite over the accepted step
                 s = (t_out[i_out] - t) / h
-                h00 = (1.0 + 2.0 * s) * (1.0 - s) ** 2
-                h10 = s * (1.0 - s) ** 2
-                h01 = s * s * (3.0 - 2.0 * s)
-                h11 = s * s * (s - 1.0)
-                mu_o[i_out] = h00 * y0 + h10 * h * k10 + h01 * z0 + h11 * h * k70
-                psi_o[i_out] = h00 * y1 + h10 * h * k11 + h01 * z1 + h11 * h * k71
+                mu_o[i_out] = _hermite(s, h, y0, k10, z0, k70)
+                psi_o[i_out] = _hermite(s, h, y1, k11, z1, k71)
                 i_out += 1
             t = t_new
             y0, y1 = z0, z1

@@ -148,6 +148,45 @@ class ReferenceRig:
     A rig defines ``atol`` (per state), ``drive``, ``initial_state()``, ``rhs(t, y)`` and ``_eval(t, y, full)``."""
 
     atol: np.ndarray
+    rig: str
+
+    def __init__(self, cfg: dict | None = None, effects=(), drive: fx.Drive | None = None, params=None) -> None:
+        self.cfg = cfg if cfg is not None else fx.load_config(self.rig)
+        self.fx = effects if isinstance(effects, fx.EffectSet) else fx.EffectSet.parse(effects, self.rig)
+        self.drive = drive or fx.default_drive(self.cfg)
+        self.p = params or self.params_from_config(self.cfg)
+        self._bind_shared()
+        self._bind()
+
+    @staticmethod
+    def params_from_config(cfg: dict):
+        raise NotImplementedError
+
+    def _bind(self) -> None:
+        """The rig's own parameters the right-hand side reads (plain floats)."""
+
+    def _bind_shared(self) -> None:
+        """The effects' parameters both rigs read alike (plain floats)."""
+        p, e = self.p, self.fx
+        self.sl = e.get("stick-log")
+        self.ab = e.get("accel-body")
+        ar = e.get("arrhenius")
+        self.ar_E = ar["E"]
+        self.ar_Tref = (ar["T_ref_C"] + fx.KELVIN) if math.isfinite(ar["T_ref_C"]) else p.T_amb_K
+        self.bd = e.get("belt-drive")
+        self.fr = e.get("force-rate-pow")
+        self.vs_D = e.get("vel-strength")["D"]
+        self.wv = e.get("waviness")
+        self.br_eps = e.get("bearing")["eps"]
+        self.C_th = p.tau_thermal / p.r_thermal  # heat capacity [J/K]
+
+    def _drive_base(self, t: float, vl: float, vld: float):
+        """The drive before its ripple: (commanded speed, lagged or commanded speed, rates of the lag's states)."""
+        v_cmd = self.drive.command(t)
+        bd = self.bd
+        if bd["tau"] > 0.0:
+            return v_cmd, vl, *fx.drive_rates(v_cmd, vl, vld, bd["tau"], bd["zeta"])
+        return v_cmd, v_cmd, 0.0, 0.0
 
     def simulate(self, t_eval: np.ndarray, *, rtol: float = 1e-7, atol_scale: float = 1.0,
                  method: str = "RK45", max_step: float = 1e-3, y0: np.ndarray | None = None) -> Trajectory:
@@ -165,36 +204,15 @@ class ReferenceRig:
 class BrakeRig(ReferenceRig):
     """The brake-2dof rig with hidden effects, driven by a :class:`effects.Drive`."""
 
-    atol = ATOL
-    rig = RIG
+    atol, rig, params_from_config = ATOL, RIG, staticmethod(params_from_config)
 
-    def __init__(self, cfg: dict | None = None, effects=(), drive: fx.Drive | None = None,
-                 params: BrakeParams | None = None) -> None:
-        self.cfg = cfg if cfg is not None else fx.load_config(RIG)
-        self.fx = effects if isinstance(effects, fx.EffectSet) else fx.EffectSet.parse(effects, RIG)
-        self.drive = drive or fx.default_drive(self.cfg)
-        self.p = params or params_from_config(self.cfg)
-        self._bind()
-
-    # -- parameters the right-hand side reads (plain floats) ------------------------------
     def _bind(self) -> None:
         p, e = self.p, self.fx
         st = e.get("stiffness")
         self.k1 = p.k1 * (1.0 + st["k1"])
         self.k2 = p.k2 * (1.0 + st["k2"])
         self.k3 = p.k3 * (1.0 + st["k3"])
-        self.sl = e.get("stick-log")
-        self.ab = e.get("accel-body")
-        ar = e.get("arrhenius")
-        self.ar_E = ar["E"]
-        self.ar_Tref = (ar["T_ref_C"] + fx.KELVIN) if math.isfinite(ar["T_ref_C"]) else p.T_amb_K
-        self.bd = e.get("belt-drive")
-        self.fr = e.get("force-rate-pow")
-        self.vs_D = e.get("vel-strength")["D"]
-        br = e.get("bearing")
-        self.br_T, self.br_eps = br["torque"], br["eps"]
-        self.wv = e.get("waviness")
-        self.C_th = p.tau_thermal / p.r_thermal  # heat capacity [J/K]
+        self.br_T = e.get("bearing")["torque"]
 
     # -- conservative part: V and its derivatives (hand-derived, checked by the tests) ----
     def lam(self, y1: float) -> float:
@@ -266,14 +284,8 @@ class BrakeRig(ReferenceRig):
     def _eval(self, t: float, s, full: bool = False):
         p = self.p
         x1, v1, y1, w1, T, th, q, af, vl, vld, trav = s
-        v_cmd = self.drive.command(t)
+        v_cmd, v_base, d_vl, d_vld = self._drive_base(t, vl, vld)
         bd = self.bd
-        if bd["tau"] > 0.0:
-            v_base = vl
-            d_vl, d_vld = fx.drive_rates(v_cmd, vl, vld, bd["tau"], bd["zeta"])
-        else:
-            v_base = v_cmd
-            d_vl = d_vld = 0.0
         vb = v_base * fx.belt_ripple(trav, bd["ripple"], bd["wavelength"], bd["h2"])
         v_rel = v1 - vb
 

@@ -83,32 +83,12 @@ def params_from_config(cfg: dict) -> DrumParams:
 class DrumRig(ReferenceRig):
     """The drum-pendulum rig with hidden effects, driven by a :class:`effects.Drive` (drum surface speed)."""
 
-    atol = ATOL
-    rig = RIG
-
-    def __init__(self, cfg: dict | None = None, effects=(), drive: fx.Drive | None = None,
-                 params: DrumParams | None = None) -> None:
-        self.cfg = cfg if cfg is not None else fx.load_config(RIG)
-        self.fx = effects if isinstance(effects, fx.EffectSet) else fx.EffectSet.parse(effects, RIG)
-        self.drive = drive or fx.default_drive(self.cfg)
-        self.p = params or params_from_config(self.cfg)
-        self._bind()
+    atol, rig, params_from_config = ATOL, RIG, staticmethod(params_from_config)
 
     def _bind(self) -> None:
         p, e = self.p, self.fx
         self.k = p.k * (1.0 + e.get("stiffness")["k"])
-        self.sl = e.get("stick-log")
-        self.ab = e.get("accel-body")
-        ar = e.get("arrhenius")
-        self.ar_E = ar["E"]
-        self.ar_Tref = (ar["T_ref_C"] + fx.KELVIN) if math.isfinite(ar["T_ref_C"]) else p.T_amb_K
-        self.bd = e.get("belt-drive")
-        self.fr = e.get("force-rate-pow")
-        self.vs_D = e.get("vel-strength")["D"]
-        br = e.get("bearing")
-        self.mu1, self.br_eps = br["mu1"], br["eps"]
-        self.wv = e.get("waviness")
-        self.C_th = p.tau_thermal / p.r_thermal
+        self.mu1 = e.get("bearing")["mu1"]
 
     def mu_law3(self, v_wz: float, peak: float = 1.0) -> float:
         """Law (3) at |v_wz| with the sign of v_wz (regularised); ``peak`` scales the hump A."""
@@ -128,14 +108,8 @@ class DrumRig(ReferenceRig):
     def _eval(self, t: float, s, full: bool = False):
         p = self.p
         phi, w, T, th, q, af, vl, vld, trav = s
-        v_cmd = self.drive.command(t)
+        v_cmd, v_base, d_vl, d_vld = self._drive_base(t, vl, vld)
         bd = self.bd
-        if bd["tau"] > 0.0:
-            v_base = vl
-            d_vl, d_vld = fx.drive_rates(v_cmd, vl, vld, bd["tau"], bd["zeta"])
-        else:
-            v_base = v_cmd
-            d_vl = d_vld = 0.0
         theta_d = trav / p.R  # drum angle
         # ripple periodic in drum angle (wavelength in rad, as the catalog's drum convention)
         vd = v_base * fx.belt_ripple(theta_d, bd["ripple"], bd["wavelength"], bd["h2"])
