@@ -144,10 +144,14 @@ def run_tcp_case(tmp: Path, data: Path, models: list[Model], serial: dict[str, t
 
 
 def local_worker_pids() -> list[int]:
-    out = []
-    for p in psutil.Process().children(recursive=True):
+    """The LocalCluster's worker processes: this process's children that are copies of it (forked by the nannies,
+    archive_jobs.START_METHOD) or, where fork does not exist, spawned ones."""
+    me = psutil.Process()
+    mine, out = me.cmdline(), []
+    for p in me.children():
         try:
-            if "spawn_main" in " ".join(p.cmdline()):
+            cmd = p.cmdline()
+            if cmd == mine or "spawn_main" in " ".join(cmd):
                 out.append(p.pid)
         except psutil.Error:  # a process that ended meanwhile (a zombie, an earlier test's)
             pass

@@ -9,8 +9,9 @@ fresh catalog (nothing cached), as a user runs it:
 - Dask, 2 workers: ``--workers 2``.
 
 Each figure is the command's wall time: every path pays its process start, imports and numba cache loads; Dask
-also the cluster's start and its workers' own imports and cache loads (``dask_fixed_s``: the 1-worker job's time
-over the serial one's). The results must be equal on all three paths (``equal``). The numba cache is warm before
+also the cluster's start and stop (its workers are forked from the job's process once it has warmed the kernels:
+archive_jobs.START_METHOD), what its scheduler and workers do beside the diagnoses, and the results' trip back
+(``dask_fixed_s``: the 1-worker job's time over the serial one's). The results must be equal on all three paths (``equal``). The numba cache is warm before
 the first timing (the first path would otherwise pay the compiles). All three commands run under the environment
 a LocalCluster's nanny gives its workers (``archive_jobs.WORKER_ENV``: one BLAS/OpenMP thread, glibc's trim
 threshold), so the serial path computes under the same settings as a worker does.
@@ -143,8 +144,8 @@ def format_archive(r: dict) -> str:
         f"  serial        {r['serial_s']:7.1f} s  {r['serial_per_min']:6.1f} records/min  (baseline: one after the "
         "other in this process)",
         f"  Dask 1 worker {r['dask1_s']:7.1f} s  {r['dask1_per_min']:6.1f} records/min  cost over serial "
-        f"{r['dask1_cost']:+.1%} ({fixed:+.1f} s a job: cluster start, worker imports, numba cache loads, and any "
-        "difference per record)",
+        f"{r['dask1_cost']:+.1%} ({fixed:+.1f} s a job: the cluster's start and stop, its scheduler and worker beside "
+        "the diagnoses, and any difference per record)",
         f"  Dask 2 workers{r['dask2_s']:7.1f} s  {r['dask2_per_min']:6.1f} records/min  {r['dask2_speedup']:.2f} x "
         "the serial rate",
         f"  CPU time      serial {r['serial_cpu_s']:.1f} s, Dask 1 worker {r['dask1_cpu_s']:.1f} s "

@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import importlib.metadata
 import logging
+import multiprocessing
 import os
 import socket
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from typing import Any
 
 import dask
@@ -96,6 +97,16 @@ WORKER_CONFIG = {
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.nanny.pre-spawn-environ": WORKER_ENV,
 }
+# How a LocalCluster's nannies start its workers: by fork, from this process after it warmed the numba cache, so a
+# worker starts with this process's imports and compiled kernels (ready in ~0.5 s) instead of a new interpreter that
+# imports everything and loads every kernel again (2-4 s, and 1-2 s more on its first record): on a job of ten
+# records that start was most of what Dask with one worker cost over the serial path (decision 33). Safe here
+# because a forked worker touches nothing this process holds open (the catalog's SQLite connection, a pytest
+# worker's sockets): it reads its recording from its path and sends its result back over its own connection; numba
+# runs no threads of its own (no parallel kernels), and a nanny that restarts a lost worker forks again from the same
+# process. Where fork does not exist, spawn. A lab's own workers (--scheduler) start as the lab starts them.
+START_METHOD = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+LOCAL_CONFIG = {**WORKER_CONFIG, "distributed.worker.multiprocessing-method": START_METHOD}
 
 
 class DiagnoseRow(Strict):
@@ -300,8 +311,8 @@ def _count(events: list[tuple[float, dict]], stored_at: dict[str, float],
 
 async def _preload() -> None:
     """Run on every worker at the start of a job, not waited for (``client.run`` takes that only for a coroutine):
-    unpickling it imports this module and with it the models (not the compiled kernels: those load on the first
-    diagnosis, after this process warmed the cache)."""
+    on a lab's worker unpickling it imports this module and with it the models (not the compiled kernels: those load
+    on the first diagnosis, after this process warmed the cache); a forked LocalCluster worker has them already."""
 
 
 def _close(client: Client | None, cluster: LocalCluster | None) -> None:
@@ -341,10 +352,9 @@ def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalC
     n = workers or os.cpu_count() or 1
     _CALLERS_ENVIRON.clear()
     _CALLERS_ENVIRON.update({k: os.environ.get(k) for k in _ENV_KEYS})
-    try:
-        with dask.config.set(WORKER_CONFIG):  # the nannies hand this configuration to the worker processes they start
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+    try:  # under LOCAL_CONFIG (engine holds it for the cluster's life: a restarted worker starts as the first did)
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
     finally:
         _put_back(_CALLERS_ENVIRON)
     return Client(cluster), cluster, f"LocalCluster ({n} worker{'s' if n > 1 else ''})"
@@ -390,13 +400,17 @@ def fan_out(client: Client, fn: Callable[..., Any], tasks: list[tuple], names: l
 @contextmanager
 def engine(scheduler: str | None, workers: int | None) -> Iterator[tuple[Client, str]]:
     """A client of ``scheduler``, or of a LocalCluster of ``workers`` started here, closed after; with the engine's
-    name. Workers import this module (and the models) at once, while the caller warms the numba cache."""
-    client, cluster, name = _connect(scheduler, workers)
-    try:
-        client.run(_preload, wait=False)
-        yield client, name
-    finally:
-        _close(client, cluster)
+    name. A lab's workers import this module (and the models) at once, while the caller warms the numba cache; a
+    LocalCluster's are forked from this process (START_METHOD) with all of it loaded."""
+    with ExitStack() as stack:
+        if not scheduler:  # the nannies read it whenever they start a worker: at the start and after a lost one
+            stack.enter_context(dask.config.set(LOCAL_CONFIG))
+        client, cluster, name = _connect(scheduler, workers)
+        try:
+            client.run(_preload, wait=False)
+            yield client, name
+        finally:
+            _close(client, cluster)
 
 
 def verdict(row: DiagnoseRow | ResultRow) -> str:
@@ -454,8 +468,11 @@ def run_job(cat: Catalog, pairs: list[tuple[CatalogRow, Model]], *, kind: str = 
         for rec, m in todo:
             store(rec, m, analyse_recording(rec.path, rec.hash, m, kind))
     elif todo:
+        if not scheduler:
+            warm()  # before the LocalCluster starts: its workers are forked with the kernels loaded (START_METHOD)
         with engine(scheduler, workers) as (client, name):
-            warm()
+            if scheduler:
+                warm()  # while the lab's workers import this module (_preload)
             say(f"on {name}: {len(client.scheduler_info().get('workers', {}))} worker(s) connected")
             # the largest files first (a diagnosis's cost grows with the record): the last one to finish is then a
             # short one, not a long one started late with the other workers idle
