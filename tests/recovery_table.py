@@ -343,9 +343,9 @@ def _on_dask(todo: list[Case], work: Path, scheduler: str | None) -> list[Outcom
         print(f"  {msg}", file=sys.stderr, flush=True)
 
     out: dict[int, Outcome] = {}
+    for rig in sorted({c.rig for c in todo}):  # before the cluster: a LocalCluster's workers are forked with it
+        warm_numba(seed_model(rig))
     with engine(scheduler, None) as (client, name):
-        for rig in sorted({c.rig for c in todo}):
-            warm_numba(seed_model(rig))
         say(f"{len(todo)} cases on {name}")
         names = [f"recovery-{i}-{c.name.replace('/', '_').replace(' ', '_')}-{c.rate:g}" for i, c in enumerate(todo)]
         for got in fan_out(client, run_case, [(c, work, 1) for c in todo], names, say):
