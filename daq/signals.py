@@ -297,12 +297,13 @@ def _clusters(runs: list[tuple[int, int]]) -> list[list[tuple[int, int]]]:
 RING_PERIODS = 1.5  # each window of ringing_by_amplitude spans this many periods of the line it starts from
 
 
-def ringing_by_amplitude(x: np.ndarray, rate: float, f_line: float, noise: float,
-                         periods: float = RING_PERIODS) -> tuple[np.ndarray, np.ndarray]:
+def ringing_by_amplitude(x: np.ndarray, rate: float, f_line: float, noise: float, periods: float = RING_PERIODS,
+                         max_windows: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """Amplitude and frequency of a ringing signal ``x``, window by window: a damped sine on a straight line fitted to
     each window of ``periods`` periods of ``f_line`` (windows overlapping by half, after a 5-sample median that takes
     out impulsive noise), kept where the fit leaves no more than twice the ``noise`` level. Returns (amplitude,
-    frequency) of the kept windows.
+    frequency) of the kept windows; at most ``max_windows`` of them, spread over the record (a long record is read at
+    that many places: ~2 s on 2 kHz).
 
     Why: a spring and a mass ring at one frequency whatever the amplitude, and a friction that depends on the speed
     alone changes their damping, not (to first order) their frequency; a line off the rig's natural frequency is then
@@ -313,14 +314,14 @@ def ringing_by_amplitude(x: np.ndarray, rate: float, f_line: float, noise: float
     from scipy.optimize import least_squares
     from scipy.signal import medfilt
 
-    n = int(round(periods * rate / f_line))
+    n = round(periods * rate / f_line)
     if n < 16 or x.size < 2 * n or not np.isfinite(f_line) or f_line <= 0:
         return np.empty(0), np.empty(0)
     y_all = medfilt(np.asarray(x, dtype=float), 5)
     tt = np.arange(n) / rate
     w_lo, w_hi = 0.5 * f_line, 2.0 * f_line
     amps, freqs = [], []
-    for i0 in range(0, y_all.size - n + 1, n // 2):
+    for i0 in range(0, y_all.size - n + 1, max(n // 2, (y_all.size - n) // max(max_windows - 1, 1) + 1)):
         y = y_all[i0:i0 + n]
         mid, span = float(np.mean(y)), float(np.ptp(y)) + 1e-300
 

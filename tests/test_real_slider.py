@@ -140,3 +140,9 @@ def test_the_lab_record_at_4_3_mm_s_read_where_its_model_fails(tmp_path):
     text = " ".join(where_text(where, "m"))
     assert "free run none" in text and "rings at 56.9 Hz" in text, text
     assert "rate-and-state" not in text and "velocity-strengthening" not in text
+    # read window by window: the small swings slide throughout and ring well above the rig file's mechanics, the
+    # large ones lower; the sentence gives the run that decides between a contact stiffness and other mechanics
+    amp = mo["by_amplitude"]
+    assert amp["windows"] > 250 and amp["swing_speed_small"] < amp["drive_speed"] == pytest.approx(4.3e-3), amp
+    assert amp["line_Hz_small"] > 1.25 * SPRING_MASS_HZ and amp["line_Hz_small"] > amp["line_Hz_large"] + 1.5, amp
+    assert "smallest quarter of swings" in text and "that run decides" in text, text

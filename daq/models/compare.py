@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import medfilt, welch
 
 from daq.physics.contact import AUX
-from daq.signals import dominant_frequency, paper_spectrogram
+from daq.signals import dominant_frequency, frequency_against_amplitude, paper_spectrogram, ringing_by_amplitude
 
 from . import robust
 from .cycle_features import PHASES, cycle_phases, load_cycles, side_by_side
@@ -208,13 +208,20 @@ def by_cycle_phase(cycles: dict[str, np.ndarray], at: np.ndarray, n: int, res: n
             for c, name in PHASES.items() if np.any(ph == c)}
 
 
-def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[str, list[float]]) -> dict:
+RINGS_OFF = 0.1  # a record ringing more than this share off the rig's natural frequency rings off its mechanics
+
+
+def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[str, list[float]],
+           noise: float | None = None, drive: float | None = None) -> dict:
     """Where the record and the model ring: the strongest line of each within a factor 2 of the rig's lowest natural
     frequency (its mechanics without friction, SimRig.modes_hz), the mains' lines masked (MAINS_TOLERANCE), and the
     model's power in that band over the record's. Why a band: the strongest line of the whole spectrum is the cycle,
     the drift or the hum (the lab's records: 50 Hz at 42 um/s, a 0.5 Hz wander at 1.1 mm/s); near the natural
     frequency it is the motion, and a record that rings off it while the model rings on it (4.3 mm/s: 56.9 Hz
-    against 43.1 Hz) has mechanics other than the rig file's, or a contact that adds stiffness."""
+    against 43.1 Hz) has mechanics other than the rig file's, or a contact that adds stiffness. Where it rings more
+    than RINGS_OFF off the natural frequency (and ``noise``, the record's level, is given), ``by_amplitude`` says how
+    its frequency moves with its amplitude (signals.frequency_against_amplitude): a spring and a mass ring at one
+    frequency whatever the amplitude, so this is the first reading between those two readings."""
     natural = min(next(iter(modes_hz.values()))) if modes_hz else float("nan")
     out = {"natural_Hz": natural, "band_Hz": [natural / 2.0, natural * 2.0], "line_Hz_record": float("nan"),
            "line_Hz_model": float("nan"), "band_power_model_over_record": float("nan")}
@@ -234,6 +241,12 @@ def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[
     out["line_Hz_record"] = float(f[band][np.argmax(spectra[0][band])])
     out["line_Hz_model"] = float(f[band][np.argmax(spectra[1][band])])
     out["band_power_model_over_record"] = float(spectra[1][band].sum() / max(spectra[0][band].sum(), 1e-300))
+    if noise is not None and abs(out["line_Hz_record"] / natural - 1.0) > RINGS_OFF:
+        amp = frequency_against_amplitude(*ringing_by_amplitude(record, rate, out["line_Hz_record"], noise))
+        # the swing's peak speed in the smallest quarter, against the drive's: below it the slider slides throughout
+        amp["swing_speed_small"] = 2.0 * math.pi * amp["line_Hz_small"] * amp["amplitude_q25"]
+        amp["drive_speed"] = float("nan") if drive is None else float(drive)
+        out["by_amplitude"] = amp
     return out
 
 
@@ -263,5 +276,5 @@ def cycle_readings(session: Session, fitted: Fitted, idx: np.ndarray, res: np.nd
     out = {"cycles": {**side_by_side(cyc_rec, cyc_model), "signal": primary, "unit": m.units[primary],
                       "loading": loading(cyc_rec, cyc_model, drive)},
            "by_cycle_phase": by_cycle_phase(cyc_rec, idx - fidx[0], fidx.size, res),
-           "motion": motion(tt, x, noisy, fitted.problem.sim(fitted.values).modes_hz())}
+           "motion": motion(tt, x, noisy, fitted.problem.sim(fitted.values).modes_hz(), m.sigma[primary], drive)}
     return out, (cyc_rec, cyc_model)

@@ -31,7 +31,7 @@ from scipy import stats
 from daq.physics.effects import CATALOG
 
 from .candidates import Candidate, add_command, candidates_for
-from .compare import where_it_lives
+from .compare import RINGS_OFF, where_it_lives
 from .extensions import fit_extensions, keep_fits
 from .margins import MIN_EXCESS
 from .report import diagnosis_json
@@ -627,7 +627,6 @@ def windows_needed() -> int:
 
 
 CREEP_LATE = 0.5  # a record loaded late in the stick at less than this share of the drive's speed creeps
-RINGS_OFF = 0.1  # a record ringing more than this share off the rig's natural frequency, where the model does not
 # the record's drops spread (quartiles over the median) more than this many times the model's free run read with the
 # record's noise, and more than MIN_SPREAD: cycles that vary beyond noise (the lab's 42 um/s record: 0.25 against
 # the seed model's 0.05)
@@ -668,14 +667,50 @@ def where_text(where: dict | None, unit: str) -> list[str]:
                        f"makes a regular cycle vary (missing: a contact that varies along the track, or a chaotic "
                        f"or noise-driven cycle, which a model started from each window's state follows for about a "
                        f"cycle).")
-    mo = where["motion"]
+    return out + ringing_text(where["motion"])
+
+
+SOFTENS_P = 0.01  # a ringing's frequency against its amplitude: a rank correlation beyond this chance is a reading
+
+
+def ringing_text(mo: dict) -> list[str]:
+    """Sentences on a record that rings off the rig file's natural frequency where the model does not (compare.motion),
+    and, where the record's ringing was read window by window (``by_amplitude``), the stiffness that holds the slider
+    at small amplitude, with the run that decides between a contact stiffness and other mechanics: at half the
+    spring's stiffness a contact adds the same stiffness, a lighter slider keeps the ratio."""
     f_rec, f_nat, f_mod = mo["line_Hz_record"], mo["natural_Hz"], mo["line_Hz_model"]
-    if np.isfinite(f_rec) and np.isfinite(f_nat) and abs(f_rec / f_nat - 1.0) > RINGS_OFF \
-            and not (np.isfinite(f_mod) and abs(f_mod / f_rec - 1.0) <= RINGS_OFF / 2
-                     and mo["band_power_model_over_record"] > RINGS_OFF):
-        out.append(f"The record rings at {f_rec:.3g} Hz where the rig file's mechanics ring at {f_nat:.3g} Hz "
-                   f"((f / f0)^2 = {(f_rec / f_nat) ** 2:.2f}; the model: {f_mod:.3g} Hz at "
-                   f"{mo['band_power_model_over_record']:.2g} of the record's power there): a stiffer spring or a "
-                   f"lighter slider than the rig file's, or a contact that adds stiffness while the slider moves; "
-                   f"the same run at another spring stiffness tells them apart (missing: mechanics, in the slip).")
+    if not (np.isfinite(f_rec) and np.isfinite(f_nat) and abs(f_rec / f_nat - 1.0) > RINGS_OFF) \
+            or (np.isfinite(f_mod) and abs(f_mod / f_rec - 1.0) <= RINGS_OFF / 2
+                and mo["band_power_model_over_record"] > RINGS_OFF):
+        return []
+    out = [(f"The record rings at {f_rec:.3g} Hz where the rig file's mechanics ring at {f_nat:.3g} Hz "
+            f"((f / f0)^2 = {(f_rec / f_nat) ** 2:.2f}; the model: {f_mod:.3g} Hz at "
+            f"{mo['band_power_model_over_record']:.2g} of the record's power there): a stiffer spring or a "
+            f"lighter slider than the rig file's, or a contact that adds stiffness while the slider moves; "
+            f"the same run at another spring stiffness tells them apart (missing: mechanics, in the slip).")]
+    amp = mo.get("by_amplitude")
+    if not amp or not np.isfinite(amp["line_Hz_small"]) \
+            or not amp["swing_speed_small"] < amp["drive_speed"]:  # its small swings must slide throughout
+        return out
+    small, ratio, half = amp["line_Hz_small"], (amp["line_Hz_small"] / f_nat) ** 2, f_nat / np.sqrt(2.0)
+    trend = (f" and {amp['line_Hz_large']:.3g} Hz in its largest (Spearman {amp['rho']:+.2f} against the amplitude)"
+             if amp["p"] < SOFTENS_P else "")
+    out.append(f"Read window by window ({amp['windows']} windows), it rings at {small:.3g} Hz in its smallest quarter of "
+               f"swings (peak speed up to {amp['swing_speed_small']:.2g} m/s, the drive's {amp['drive_speed']:.2g})"
+               f"{trend}: at small amplitude, where a friction that depends on the speed alone damps the swing but "
+               f"does not retune it, the slider is held by {ratio:.2f} times the rig file's stiffness over its mass. "
+               f"At half the spring's stiffness a contact stiffness would add the same and ring at "
+               f"{half * np.sqrt(2.0 * ratio - 1.0):.3g} Hz, a lighter slider keep the ratio and ring at "
+               f"{half * np.sqrt(ratio):.3g} Hz: that run decides (missing: a stiffness in the contact, or the rig "
+               f"file's mass or spring).")
+    return out
+    small, large, ratio = amp["line_Hz_small"], amp["line_Hz_large"], (amp["line_Hz_small"] / f_nat) ** 2
+    half = f_nat / np.sqrt(2.0)
+    out.append(f"Read window by window ({amp['windows']} windows), it rings at {small:.3g} Hz in its smallest quarter of "
+               f"swings (peak speed up to {amp['swing_speed_small']:.2g}, the drive's {amp['drive_speed']:.2g}) and {large:.3g} Hz in its largest (Spearman {amp['rho']:+.2f} against the amplitude): at small "
+               f"amplitude, where a friction that depends on the speed alone damps the swing but does not retune it, "
+               f"the slider is held by {ratio:.2f} times the rig file's stiffness over its mass. At half the spring's "
+               f"stiffness a contact stiffness would add the same and ring at {half * np.sqrt(2.0 * ratio - 1.0):.3g} "
+               f"Hz, a lighter slider keep the ratio and ring at {half * np.sqrt(ratio):.3g} Hz: that run decides "
+               f"(missing: a stiffness in the contact, or the rig file's mass or spring).")
     return out

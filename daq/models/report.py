@@ -152,6 +152,11 @@ def compare_text(res: dict, report: str | None = None) -> str:
     lines.append(f"  ringing (strongest line within 2x of the rig's lowest natural frequency {mo['natural_Hz']:.3g} Hz, "
                  f"mains masked): record {mo['line_Hz_record']:.3g} Hz, model {mo['line_Hz_model']:.3g} Hz with "
                  f"{mo['band_power_model_over_record']:.2g} of the record's power there")
+    amp = mo.get("by_amplitude")
+    if amp and amp["windows"]:
+        lines.append(f"  ringing by amplitude ({amp['windows']} windows): {amp['line_Hz_small']:.3g} Hz in the smallest "
+                     f"quarter (up to {amp['amplitude_q25']:.3g} {res['cycles']['unit']}), {amp['line_Hz_large']:.3g} Hz "
+                     f"in the largest (from {amp['amplitude_q75']:.3g}); Spearman {amp['rho']:+.2f} (p {amp['p']:.2g})")
     lines.append(f"  worst regime: {res['worst_regime']}" + (f"; report in {report}/" if report else ""))
     return "\n".join(lines)
 
