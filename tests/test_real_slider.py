@@ -116,6 +116,9 @@ def test_a_lab_record_goes_through_the_users_path(tmp_path, name):
         mo = res["motion"]
         assert mo["natural_Hz"] == pytest.approx(SPRING_MASS_HZ, rel=1e-3), mo
         assert mo["line_Hz_record"] == pytest.approx(line, abs=0.5), mo
+        # read window by window, and drawn beside the rig file's frequency
+        assert mo["by_amplitude"]["line_Hz_small"] > 1.25 * SPRING_MASS_HZ, mo
+        assert (tmp_path / "cmp" / "ringing.png").stat().st_size > 10_000
 
 
 def test_the_lab_record_at_4_3_mm_s_read_where_its_model_fails(tmp_path):

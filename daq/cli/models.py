@@ -165,7 +165,7 @@ def _append_history(path: Path, res: dict) -> None:
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
     from daq.models.compare import compare
-    from daq.models.figures import compare_figure, cycles_figure, spectrogram_figure
+    from daq.models.figures import compare_figure, cycles_figure, ringing_figure, spectrogram_figure
     from daq.models.report import compare_text
     from daq.models.spec import save_model
 
@@ -183,6 +183,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         compare_figure(s, f, res, rep / "compare.png")
         spectrogram_figure(s, cmp.drawn, rep / "spectrogram.png")
         cycles_figure(s, res, cmp.drawn, rep / "cycles.png")
+        ringing_figure(s, res, cmp.drawn, rep / "ringing.png")  # where the record rings off the rig's mechanics
         (rep / "compare.json").write_text(dumps_json(res))
         save_model(f.model, rep / "fitted.toml")
         res["report"] = str(rep)
