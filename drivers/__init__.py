@@ -10,4 +10,13 @@
 - ``thermocouple.py``: the slowly polled thermocouple meter.
 
 Drivers never import the simulators (sim_backends/, daq.sim): tests/test_layering.py.
+
+Exports (``__all__``) ``build_drivers``, its ``RigDrivers``, what every driver shares and the family registry, each
+imported when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__, {"factory": ["build_drivers", "RigDrivers"], "base": ["Sample", "DriverState"], "families": ["FAMILIES"]}
+)

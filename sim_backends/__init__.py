@@ -7,4 +7,19 @@
 - ``instrument.py``: what the simulated instruments share (device clock, sensor model, faults);
 - ``pty_port.py``: a pseudo-terminal behind a stable link, unpluggable like a USB cable;
 - ``motor.py``, ``can_sensors.py``, ``serial_stream.py``, ``thermocouple.py``: one per family.
+
+Exports (``__all__``) the simulated bench (in-process and in a process of its own), the real-time rig and the
+family registry, each imported when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "hardware": ["SimulatedHardware"],
+        "process": ["SimBenchProcess"],
+        "realtime": ["RealtimeRig"],
+        "families": ["SIMULATORS", "simulator_class"],
+    },
+)

@@ -222,3 +222,71 @@ def test_the_circle_detector_finds_a_circle(tmp_path: Path):
     graph = import_graph(tmp_path / "pkg")
     assert graph["pkg"] == {"pkg.a"} and graph["pkg.e"] == set()
     assert import_circles(graph) == [["pkg.a", "pkg.b", "pkg.c"], ["pkg.d", "pkg.sub.m"]]
+
+
+# packages whose own __init__ imports these on purpose: daq.physics sets numba's cache directory (decision 1)
+HEAVY = ("numba", "scipy", "numpy", "h5py", "zmq", "pandas", "matplotlib", "pydantic", "starlette", "uvicorn")
+HEAVY_ON_PURPOSE = {"daq.physics": {"numba", "numpy", "scipy"}}
+
+
+def _packages() -> list[str]:
+    return sorted(_module_name(p) for d in PACKAGES for p in (ROOT / d).rglob("__init__.py"))
+
+
+def test_every_package_says_what_it_exports():
+    """Each package's ``__all__`` (issue 30) names objects of its own tree, no higher in the layers than the package
+    (``daq`` is the bottom layer: it may not export ``daq.config``'s names), none under a submodule's name unless
+    it is that submodule: importing the submodule would rebind the name to it."""
+    import importlib
+    import inspect
+
+    bad = []
+    for name in _packages():
+        pkg = importlib.import_module(name)
+        exported = getattr(pkg, "__all__", None)
+        if not exported:
+            bad.append(f"{name}: no __all__")
+            continue
+        submodules = {p.stem for p in Path(pkg.__file__).parent.glob("*.py")} | {
+            p.parent.name for p in Path(pkg.__file__).parent.glob("*/__init__.py")
+        }
+        for attr in exported:
+            value = getattr(pkg, attr)  # an AttributeError or ImportError here is a broken entry
+            assert attr in dir(pkg), f"{name}.{attr} missing from dir()"
+            if inspect.ismodule(value):
+                where = value.__name__
+            elif inspect.isclass(value) or inspect.isfunction(value):
+                where = value.__module__
+            else:
+                where = None  # a constant: no __module__ of its own
+            if where is not None and where != name and not where.startswith(f"{name}."):
+                bad.append(f"{name}.{attr} is defined in {where}")
+            elif where is not None and LEVEL[_unit(where)] > LEVEL[_unit(name)]:
+                bad.append(f"{name}.{attr} comes from {where}, a layer above {name}")
+            if attr in submodules and not inspect.ismodule(value):
+                bad.append(f"{name}.{attr} is also a submodule's name")
+    assert not bad, "\n".join(bad)
+
+
+def test_importing_a_package_imports_none_of_its_exports():
+    """``import daq.models`` alone loads the package's ``__init__`` and those above it, nothing more of ours: its
+    exports are imported when first used (PEP 562), so light processes (the web page's, ``daq --help``) still import
+    no numba, scipy or numpy. Measured before issue 30: only daq.physics imported any of HEAVY (numba, by design)."""
+    import json
+    import subprocess
+    import sys
+
+    bad = []
+    for name in _packages():
+        code = f"import json, sys; import {name}; print(json.dumps(sorted(sys.modules)))"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+        loaded = set(json.loads(out.stdout))
+        ours = {m for m in loaded if m.split(".")[0] in PACKAGES}
+        parts = name.split(".")
+        expected = {".".join(parts[: i + 1]) for i in range(len(parts))} | {"daq"}
+        if ours != expected:
+            bad.append(f"import {name} also imports {sorted(ours - expected)}")
+        heavy = {m for m in HEAVY if m in loaded} - HEAVY_ON_PURPOSE.get(name, set())
+        if heavy:
+            bad.append(f"import {name} imports {sorted(heavy)}")
+    assert not bad, "\n".join(bad)

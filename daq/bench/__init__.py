@@ -4,12 +4,16 @@ One module per benchmark, found through one registry (:data:`BENCHES`), as pytho
 interfaces: a module is imported only when its benchmark is asked for, so `daq --help` does not
 pay for numba, zmq and the simulators.
 
+Exports the registry (``BENCHES``) and ``run_bench``; the benchmarks' modules are not exported.
+
 Decision records: docs/decisions/0012-layout-by-layer.md, docs/decisions/0013-benchmarks-beside-same-run-baselines.md.
 """
 
 from __future__ import annotations
 
 import importlib
+
+__all__ = ["BENCHES", "run_bench"]
 
 # name -> (module, benchmark function, report formatter); imported only when asked for
 BENCHES: dict[str, tuple[str, str, str]] = {

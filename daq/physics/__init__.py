@@ -5,6 +5,8 @@ function's callee changes in another file, so the cache lives in a directory
 keyed by a hash of all compiled sources: any edit gets a fresh cache.
 
 Decision record: docs/decisions/0001-physics-in-one-place.md.
+
+Exports (``__all__``) the rigs' modules, ``friction`` and the effect catalogue, each imported when first used.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import hashlib
 import os
 from pathlib import Path
+
+from daq import lazy_exports
 
 
 def _cache_dir() -> Path:
@@ -26,3 +30,7 @@ if "NUMBA_CACHE_DIR" not in os.environ:
     import numba
 
     numba.config.CACHE_DIR = str(_cache_dir())
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__, {"effects": ["CATALOG", "E"]}, modules=["beltndof", "brake2dof", "drum", "friction"]
+)

@@ -15,4 +15,17 @@ finished cells and redoes an interrupted one. Method and measurements: docs/camp
 
 The command line (options, defaults of the grid, resume checks, operator prompts) is
 ``daq/cli/campaign.py``.
+
+Exports (``__all__``) the run loop, the state file's functions and ``write_table``, each imported when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "run": ["Campaign", "Interrupted"],
+        "state": ["CampaignCfg", "load_state", "new_state", "save_state"],
+        "table": ["write_table"],
+    },
+)

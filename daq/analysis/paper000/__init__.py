@@ -14,4 +14,15 @@ the measured recovery. Commands: ``daq analyse belt-law`` and ``daq analyse poin
 - belt_law.py: the whole identification (belt_law) and its JSON (BeltLawResult)
 - poincare.py: Poincaré section, period-k / irregular (poincare, PoincareResult)
 - figures.py: the paper's figures from the results
+
+Exports (``__all__``) ``prepare``, the results and the modules ``belt_law`` and ``poincare`` (their functions share
+the modules' names), each imported when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {"preparation": ["prepare"], "belt_law": ["BeltLawResult"], "poincare": ["PoincareResult"]},
+    modules=["belt_law", "poincare"],
+)

@@ -19,4 +19,12 @@ where it is made and tested.
   thresholds in :class:`TransitionCfg`.
 - ``reference.py``: what the paper reports for its 160 s run and its Fig. 11 windows (``--paper-marks``).
 - ``figures.py``: the four PNGs of ``--report`` (:data:`FIGURES`).
+
+Exports (``__all__``) ``analyse_run``, its result and ``TransitionCfg``, each imported when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__, {"analysis": ["analyse_run", "BrakeRunResult"], "transitions": ["TransitionCfg"]}
+)

@@ -11,4 +11,14 @@ The paper identifies its friction model in two steps, and so do we; one module p
 - ``figures.py``: mu_t.png, mu_v.png, residuals.png (``figures``).
 
 Method, measured selection and recovery: docs/campaign.md.
+
+Exports (``__all__``) ``analyse_drum_mu``, the cell's programme and law (3)'s fit, with their results, each imported
+when first used.
 """
+
+from daq import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {"analysis": ["analyse_drum_mu", "DrumMuResult"], "programme": ["cell_ramp"], "law": ["fit_law", "DrumLawFit"]},
+)
