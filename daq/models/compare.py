@@ -108,7 +108,8 @@ def spectral_line(t: np.ndarray, x: np.ndarray, fmin: float = 0.5) -> tuple[np.n
 @dataclass
 class Drawn:
     """The arrays compare's figures draw, kept out of its JSON: the scored samples and their residuals, the free
-    run (sample indices, predictions, states, aux) and the cycles of record and model."""
+    run (sample indices, predictions, states, aux), the cycles of record and model, and where the record rings above
+    the rig's mechanics each window's amplitude and frequency (ringing_windows; None elsewhere)."""
 
     idx: np.ndarray
     res: dict[str, np.ndarray]
@@ -117,6 +118,7 @@ class Drawn:
     states: np.ndarray
     aux: np.ndarray
     cycles: tuple[dict, dict]
+    ringing: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class Compared(NamedTuple):
@@ -173,7 +175,8 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> Compar
     meas_inv = invariants(session, tt, m.outputs[primary][fidx], m.v_rel[fidx])
     model_inv = invariants(session, tt, pred[primary], aux[:, AUX.V_REL])
     out["invariants"] = {k: {"measured": meas_inv[k], "model": model_inv[k]} for k in meas_inv}
-    readings, (cyc_rec, cyc_model) = cycle_readings(session, fitted, idx, res[primary], fidx, pred[primary])
+    cyc = cycle_readings(session, fitted, idx, res[primary], fidx, pred[primary])
+    readings = cyc.readings
     out.update(readings)
     try:
         ts, fm = spectral_line(tt, m.outputs[primary][fidx])
@@ -182,7 +185,7 @@ def compare(session: Session, fitted: Fitted, floor: dict[str, float]) -> Compar
     except ValueError:
         out["spectral_line"] = None
     return Compared(result=out, drawn=Drawn(idx=idx, res=res, fidx=fidx, pred=pred, states=states, aux=aux,
-                                          cycles=(cyc_rec, cyc_model)))
+                                          cycles=cyc.cycles, ringing=cyc.ringing))
 
 
 def loading(record: dict[str, np.ndarray], model: dict[str, np.ndarray], drive_speed: float) -> dict:
@@ -211,17 +214,13 @@ def by_cycle_phase(cycles: dict[str, np.ndarray], at: np.ndarray, n: int, res: n
 RINGS_OFF = 0.1  # a record ringing more than this share off the rig's natural frequency rings off its mechanics
 
 
-def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[str, list[float]],
-           noise: float | None = None, drive: float | None = None) -> dict:
+def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[str, list[float]]) -> dict:
     """Where the record and the model ring: the strongest line of each within a factor 2 of the rig's lowest natural
     frequency (its mechanics without friction, SimRig.modes_hz), the mains' lines masked (MAINS_TOLERANCE), and the
     model's power in that band over the record's. Why a band: the strongest line of the whole spectrum is the cycle,
     the drift or the hum (the lab's records: 50 Hz at 42 um/s, a 0.5 Hz wander at 1.1 mm/s); near the natural
     frequency it is the motion, and a record that rings off it while the model rings on it (4.3 mm/s: 56.9 Hz
-    against 43.1 Hz) has mechanics other than the rig file's, or a contact that adds stiffness. Where it rings more
-    than RINGS_OFF above the natural frequency (and ``noise``, the record's level, is given), ``by_amplitude`` says how
-    its frequency moves with its amplitude (signals.frequency_against_amplitude): a spring and a mass ring at one
-    frequency whatever the amplitude, so this is the first reading between those two readings."""
+    against 43.1 Hz) has mechanics other than the rig file's, or a contact that adds stiffness (ringing_windows)."""
     natural = min(next(iter(modes_hz.values()))) if modes_hz else float("nan")
     out = {"natural_Hz": natural, "band_Hz": [natural / 2.0, natural * 2.0], "line_Hz_record": float("nan"),
            "line_Hz_model": float("nan"), "band_power_model_over_record": float("nan")}
@@ -241,15 +240,26 @@ def motion(t: np.ndarray, record: np.ndarray, model: np.ndarray, modes_hz: dict[
     out["line_Hz_record"] = float(f[band][np.argmax(spectra[0][band])])
     out["line_Hz_model"] = float(f[band][np.argmax(spectra[1][band])])
     out["band_power_model_over_record"] = float(spectra[1][band].sum() / max(spectra[0][band].sum(), 1e-300))
-    # read only where the record rings above its mechanics (what a friction of the speed cannot do; below them is
-    # what sticking does, e.g. every simulated stick-slip record): 0.5-1 s a record at 100 Hz, so not on every compare
-    if noise is not None and out["line_Hz_record"] > (1.0 + RINGS_OFF) * natural:
-        amp = frequency_against_amplitude(*ringing_by_amplitude(record, rate, out["line_Hz_record"], noise))
-        # the swing's peak speed in the smallest quarter, against the drive's: below it the slider slides throughout
-        amp["swing_speed_small"] = 2.0 * math.pi * amp["line_Hz_small"] * amp["amplitude_q25"]
-        amp["drive_speed"] = float("nan") if drive is None else float(drive)
-        out["by_amplitude"] = amp
     return out
+
+
+def ringing_windows(t: np.ndarray, record: np.ndarray, mo: dict, noise: float,
+                    drive: float) -> tuple[dict, np.ndarray, np.ndarray] | None:
+    """Where a record rings more than RINGS_OFF above the rig's natural frequency (``mo``: :func:`motion`'s reading),
+    its ringing read window by window: how its frequency moves with its amplitude
+    (signals.frequency_against_amplitude, with the smallest swings' peak speed against the drive's: below it the
+    slider slides throughout), and each window's amplitude and frequency (for the figure). A spring and a mass ring
+    at one frequency whatever the amplitude, so this is the first reading between those two readings. None below:
+    ringing below its mechanics is what sticking does (every simulated stick-slip record), and the reading costs
+    0.5-1 s a record at 100 Hz, too much for every compare."""
+    line = mo["line_Hz_record"]
+    if not line > (1.0 + RINGS_OFF) * mo["natural_Hz"]:
+        return None
+    amps, freqs = ringing_by_amplitude(record, 1.0 / float(np.median(np.diff(t))), line, noise)
+    amp = frequency_against_amplitude(amps, freqs)
+    amp["swing_speed_small"] = 2.0 * math.pi * amp["line_Hz_small"] * amp["amplitude_q25"]
+    amp["drive_speed"] = float(drive)
+    return amp, amps, freqs
 
 
 def where_it_lives(session: Session, fitted: Fitted) -> dict:
@@ -258,17 +268,25 @@ def where_it_lives(session: Session, fitted: Fitted) -> dict:
     motion, and the cycles' summaries of record and model."""
     idx, res, _ = residual_samples(session, fitted)
     fidx, pred, _, _ = session.free_run(fitted)
-    readings = cycle_readings(session, fitted, idx, res[session.primary], fidx, pred[session.primary])[0]
+    readings = cycle_readings(session, fitted, idx, res[session.primary], fidx, pred[session.primary]).readings
     cycles = readings["cycles"]
     return {"by_cycle_phase": readings["by_cycle_phase"], "loading": cycles["loading"], "motion": readings["motion"],
             "cycles": {"record": cycles["record"], "model": cycles["model"]}}
 
 
+class CycleReadings(NamedTuple):
+    """compare's cycle readings (JSON) and what its figures draw of them."""
+
+    readings: dict
+    cycles: tuple[dict, dict]  # the record's and the model's cycle tables
+    ringing: tuple[np.ndarray, np.ndarray] | None  # each window's amplitude and frequency (ringing_windows)
+
+
 def cycle_readings(session: Session, fitted: Fitted, idx: np.ndarray, res: np.ndarray, fidx: np.ndarray,
-                   pred: np.ndarray) -> tuple[dict, tuple[dict, dict]]:
+                   pred: np.ndarray) -> CycleReadings:
     """From the primary signal's residual samples (``res`` at ``idx``) and the free run (``pred`` at ``fidx``): the
     cycles record / model side by side with their loading, the error by cycle phase, the ringing; and the two
-    cycle tables (for the figure). The free run is read with the record's noise on it (fixed seed), by the same
+    cycle tables and the ringing's windows (for the figures). The free run is read with the record's noise on it (fixed seed), by the same
     rule as the record."""
     m, primary = session.m, session.primary
     tt, x = m.t[fidx], m.outputs[primary][fidx]
@@ -278,5 +296,8 @@ def cycle_readings(session: Session, fitted: Fitted, idx: np.ndarray, res: np.nd
     out = {"cycles": {**side_by_side(cyc_rec, cyc_model), "signal": primary, "unit": m.units[primary],
                       "loading": loading(cyc_rec, cyc_model, drive)},
            "by_cycle_phase": by_cycle_phase(cyc_rec, idx - fidx[0], fidx.size, res),
-           "motion": motion(tt, x, noisy, fitted.problem.sim(fitted.values).modes_hz(), m.sigma[primary], drive)}
-    return out, (cyc_rec, cyc_model)
+           "motion": motion(tt, x, noisy, fitted.problem.sim(fitted.values).modes_hz())}
+    ringing = ringing_windows(tt, x, out["motion"], m.sigma[primary], drive)
+    if ringing is not None:
+        out["motion"]["by_amplitude"] = ringing[0]
+    return CycleReadings(out, (cyc_rec, cyc_model), None if ringing is None else ringing[1:])

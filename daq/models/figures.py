@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from daq.io.png import save_png  # noqa: E402
 from daq.physics.contact import AUX  # noqa: E402
-from daq.signals import paper_spectrogram, ringing_by_amplitude, sg  # noqa: E402
+from daq.signals import RING_PERIODS, paper_spectrogram, sg  # noqa: E402
 
 from . import robust  # noqa: E402
 from .compare import OUTLIER_SIGMAS, Drawn  # noqa: E402
@@ -206,17 +206,16 @@ def cycles_figure(session: Session, result: dict, drawn: Drawn, path: Path) -> N
 def ringing_figure(session: Session, result: dict, drawn: Drawn, path: Path) -> bool:
     """A record ringing off the rig's natural frequency, read window by window (compare's motion.by_amplitude):
     each window's frequency against its amplitude, the rig file's natural frequency, the medians of the smallest and
-    largest quarters. Drawn only where compare read it (returns whether it drew)."""
-    mo = result["motion"]
-    amp = mo.get("by_amplitude")
-    if not amp or not amp["windows"]:
+    largest quarters (``drawn.ringing``: compare's windows, not read again). Drawn only where compare read it
+    (returns whether it drew)."""
+    mo, amp = result["motion"], result["motion"].get("by_amplitude")
+    if drawn.ringing is None or not amp["windows"]:
         return False
-    m, primary = session.m, session.primary
-    rate = 1.0 / float(np.median(np.diff(m.t)))
-    a, f = ringing_by_amplitude(m.outputs[primary][drawn.fidx], rate, mo["line_Hz_record"], m.sigma[primary])
+    a, f = drawn.ringing
+    primary = session.primary
     unit = result["cycles"]["unit"]
     fig, ax = plt.subplots(figsize=(6.4, 4.2), constrained_layout=True)
-    ax.plot(a, f, ".", ms=4, alpha=0.6, label=f"record, {a.size} windows of {1.5:g} periods")
+    ax.plot(a, f, ".", ms=4, alpha=0.6, label=f"record, {a.size} windows of {RING_PERIODS:g} periods")
     ax.axhline(mo["natural_Hz"], color="k", ls=":", label=f"rig file's mechanics {mo['natural_Hz']:.3g} Hz")
     for key, edge, c in (("smallest", amp["amplitude_q25"], "C2"), ("largest", amp["amplitude_q75"], "C3")):
         line = amp["line_Hz_small" if key == "smallest" else "line_Hz_large"]
