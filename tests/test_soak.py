@@ -35,7 +35,7 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
     streams = {s["stream"]: s for s in res["streams"]}
     assert {"motor", "laser_serial", "thermocouple"} <= set(streams), streams
     for s in streams.values():
-        assert s["nominal_hz"] and 0.9 < s["ratio"] < 1.1, s
+        assert s["nominal_hz"] and 0.9 < s["ratio"] < 1.1, (s, res["drops"])  # failed polls are among the drops
     assert len(res["recordings"]) == 2 and res["lost_total"] == 0, (res["recordings"], res["lost"])
     assert all(x["closed_cleanly"] and x["lost_blocks"] == 0 and x["samples"] > 0 for x in res["recordings"])
     assert res["viewer"]["frames"] > 10 and res["ramps_run"] >= 1

@@ -254,15 +254,17 @@ class Daemon:
         with self.lock:
             if not self.started:
                 raise RuntimeError("daemon is not running")
-            if self.runner is not None and self.runner.running:
-                raise RuntimeError("a ramp is already running; stop it first")
             d = self.rig.drive
             runner = make(self.drivers.motor, d.max_speed_m_per_s, d.max_accel_m_per_s2,
                           cfg=RampRunnerCfg(time_scale=float(time_scale)), on_event=self._on_ramp_event)
+            # the latch first: a ramp that runs into a latched regulator has not ended yet, and "stop it first"
+            # would send the operator the wrong way (the belt needs a reset, not a stop)
             why = self.motion.refusal(read=True)
             if why is not None:
                 self._publish("motion_refused", "daemon", f"{label}: {why}")
                 raise MotionRefused(why)
+            if self.runner is not None and self.runner.running:
+                raise RuntimeError("a ramp is already running; stop it first")
             self.runner = runner.start()
             self.motion.halted = False
         self._publish("ramp_start", "ramp", label)

@@ -275,18 +275,33 @@ def predicted(session: Session, rival: Rival, prog: Programme, noise: bool = Tru
     return rec
 
 
+class _TruthRecord:
+    """The record ``truth`` predicts, read as a session, and ``truth``'s own error on its held-out windows: the
+    same for every rival scored against it, so computed once (a held-out score fits every window's start; it was
+    computed once per rival, 12 scores a programme where 10 differ)."""
+
+    def __init__(self, session: Session, truth: Rival, rec: Recording) -> None:
+        self.truth = truth
+        self.s = Session(rec, "(predicted)", session.cfg, max_windows=MAX_WINDOWS, loss=session.loss,
+                         window_s=(session.win.length - 1) / session.m.rate)
+        self.s.m.sigma = dict(session.m.sigma)  # the record's noise model, not a re-estimate
+        self.hw = self.s.win.select(True)
+        _, self.ms = self.s.held_out(self.s.problem(truth.fitted.model), truth.fitted.values)
+
+    def against(self, rival: Rival) -> PairScore:
+        """``rival`` at its values against this record, on its held-out windows."""
+        s = self.s
+        _, ms_r = s.held_out(s.problem(rival.fitted.model), rival.fitted.values)
+        d = s.weighted(ms_r, self.hw) - s.weighted(self.ms, self.hw)
+        n = int(d.size)
+        chi2 = float(np.sum((s.win.length - 1) * d))
+        return PairScore(self.truth.label, rival.label, min(consistency(d), z_attainable(n)),
+                         math.sqrt(max(chi2, 0.0)), n)
+
+
 def score_pair(session: Session, truth: Rival, rival: Rival, rec: Recording) -> PairScore:
     """``rival`` at its values against the record ``truth`` predicts, on that record's held-out windows."""
-    s = Session(rec, "(predicted)", session.cfg, max_windows=MAX_WINDOWS, loss=session.loss,
-                window_s=(session.win.length - 1) / session.m.rate)
-    s.m.sigma = dict(session.m.sigma)  # the record's noise model, not a re-estimate
-    hw = s.win.select(True)
-    _, ms_t = s.held_out(s.problem(truth.fitted.model), truth.fitted.values)
-    _, ms_r = s.held_out(s.problem(rival.fitted.model), rival.fitted.values)
-    d = s.weighted(ms_r, hw) - s.weighted(ms_t, hw)
-    n = int(d.size)
-    chi2 = float(np.sum((s.win.length - 1) * d))
-    return PairScore(truth.label, rival.label, min(consistency(d), z_attainable(n)), math.sqrt(max(chi2, 0.0)), n)
+    return _TruthRecord(session, truth, rec).against(rival)
 
 
 def score(session: Session, rivals: list[Rival], prog: Programme) -> Scored:
@@ -297,8 +312,8 @@ def score(session: Session, rivals: list[Rival], prog: Programme) -> Scored:
         others = [o for o in rivals if o is not truth and NOTHING in (truth.label, o.label)
                   or o is not truth and rivals[0].label != NOTHING]
         if others:
-            rec = predicted(session, truth, prog)
-            pairs += [score_pair(session, truth, other, rec) for other in others]
+            record = _TruthRecord(session, truth, predicted(session, truth, prog))
+            pairs += [record.against(other) for other in others]
     return Scored(programme=prog, pairs=pairs)
 
 
