@@ -95,6 +95,8 @@ def test_kill9_of_the_daemon_the_regulator_watchdog_stops_the_belt(killed):
 
 @pytest.mark.slow
 def test_restart_after_kill9_reports_the_unclean_end_and_refuses_motion(killed, restarted):
+    # stderr is read by its own thread, which a loaded machine may run after the ready line (stdout) was parsed
+    wait_for(lambda: any("ended uncleanly" in line for line in restarted.err), 10, "the unclean-end warning")
     warning = [line for line in restarted.err if "ended uncleanly" in line]
     assert len(warning) == 1, restarted.err
     line = warning[0]

@@ -21,6 +21,7 @@ def test_the_closed_loop_demo_finds_what_one_speed_cannot_show(tmp_path, capsys)
     first, last = summary["steps"][0], summary["steps"][-1]
     assert first["named"] == [] and first["proposal"]["rivals"][0] == "nothing more"
     assert summary["proposed_runs"] == 1 and len(summary["runs"]) == 2
+    assert first["proposal"]["scored"] == first["proposal"]["family_size"]  # no budget cut: not the machine's speed
     _, rt, rv = load_ramp(out / "proposal-1" / "next.toml")  # the file the daemon ran, as written
     assert rv.max() - rv.min() > 0.01  # the speed changes: what one constant speed could not show
     assert (out / "proposal-1" / "next.png").stat().st_size > 20_000

@@ -247,7 +247,7 @@ def test_a_dead_web_process_is_reported_and_acquisition_goes_on(tmp_path):
         st = wait_for(lambda: (s := d.status())["web"]["alive"] is False and s, 2.0, "status to say the page died")
         assert st["web"]["exit"] == -signal.SIGKILL
         assert "web page" in d.ctl("status").stdout and "ENDED (exit -9)" in d.ctl("status").stdout
-        assert any("web page process ended unexpectedly" in line for line in d.err)
+        wait_for(lambda: any("web page process ended unexpectedly" in line for line in d.err), 5, "the stderr line")
         time.sleep(1.2)  # a fresh one-second rate window, all of it after the kill
         rates = {k: v["rate_hz"] for k, v in d.status()["streams"].items()}
         assert rates and all(r > 0 for r in rates.values()), rates  # acquisition goes on

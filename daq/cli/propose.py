@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -34,7 +35,7 @@ def cmd_propose(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.suffix.lower() != ".toml":
         raise InputError(str(out), "-o", "must end in .toml (a ramp file the daemon runs)")
-    if not args.budget > 0:
+    if args.budget is not None and not args.budget > 0:
         raise InputError("--budget", "--budget", f"{args.budget:g} s: must be > 0")
     model = load_model(args.model)
     known = {c.label: c for c in candidates_for(model)}
@@ -69,7 +70,7 @@ def cmd_propose(args: argparse.Namespace) -> int:
     for r in rs:
         say(f"{r.label}: {r.error(s):.4g} {s.m.units[s.primary]} on the record"
             + (f" ({r.fixed} held at a generic strength: the record cannot tell it from nothing)" if r.fixed else ""))
-    prop = design.propose(s, rs, args.budget, max_run, v0, say)
+    prop = design.propose(s, rs, math.inf if args.budget is None else args.budget, max_run, v0, say)
     best: Programme = prop.best.programme
     write_programme(best, out)
     result = design.as_json(s, prop)
@@ -102,7 +103,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(EFFECT or EFFECT:FORM); repeat for several. Default: diagnose first and take what it leaves "
                         "standing (a tie, or the effects the record cannot see)")
     p.add_argument("--rig", help="rig of a CSV/TDMS file (default: the model's)")
-    p.add_argument("--budget", type=float, default=120.0, help="seconds for scoring programmes (default 120)")
+    p.add_argument("--budget", type=float,
+                   help="seconds for scoring programmes; past them the best of those scored (which then depends on "
+                        "the machine's speed). Default: the rig's whole family, whatever it takes")
     p.add_argument("--max-run-s", type=float, help=f"longest programme [s] (default: twice the first record, within "
                                                    f"[{MIN_RUN_S:g}, {MAX_RUN_S:g}] s)")
     p.add_argument("-o", "--output", required=True, help="NEXT.toml: the proposed ramp (with NEXT.png, NEXT.json)")

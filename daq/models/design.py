@@ -379,5 +379,5 @@ def as_json(session: Session, p: Proposal) -> dict:
         "scored": [{"programme": s.programme.name, "z": s.z, "separation": s.separation, "decides": s.decides,
                     "decided_rivals": s.decided()}
                    for s in p.scored],
-        "family_size": p.family_size, "seconds": p.seconds, "budget_s": p.budget_s,
+        "family_size": p.family_size, "seconds": p.seconds, "budget_s": p.budget_s if math.isfinite(p.budget_s) else None,
     }

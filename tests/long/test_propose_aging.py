@@ -81,7 +81,7 @@ def test_aging_at_one_speed_is_found_by_the_run_the_proposal_asks_for(tmp_path, 
     with capsys.disabled():
         print("first record:", a["summary"])
     assert not a["missing_effect_found"] or a["undecided"], a["summary"]
-    prop = run_json(capsys, "propose", str(first), "--model", str(model), "--rig", str(rig), "--budget", "120",
+    prop = run_json(capsys, "propose", str(first), "--model", str(model), "--rig", str(rig),
                     "-o", str(tmp_path / "next.toml"))
     with capsys.disabled():
         print("proposal:", prop["programme"], prop["reason"], prop.get("decided_rivals"), f"of {prop['family_size']}")
