@@ -9,11 +9,9 @@ BIN := $(VENV)/bin
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
-# three workers (pytest-xdist) on two cores: one runs the files that wait on the wall clock (a daemon, a soak, a
-# browser) one after another, the other two compute; a file at a time, in conftest.py's order (longest first): the
-# suite in under 10 minutes on a 2-core machine. `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"`
-# quickly.
-PYTEST_WORKERS ?= 3
+# two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first): the suite in
+# under 10 minutes on a 2-core machine. `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
+PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder
 

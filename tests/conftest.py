@@ -1,10 +1,9 @@
 """Shared fixtures (rig configs and short simulations, computed once per session), and the order files run in.
 
-`make test` runs the suite on three pytest-xdist workers on two cores, a file to a worker at a time (``-n 3 --dist
-loadfile --no-loadscope-reorder``: a module's fixtures, such as a daemon, start once), except that the files that run
-in real time are one unit of work, on one worker, while the other two compute. Files are taken in collection order:
-RUN_FIRST below, then the files with a slow test, then the rest (docs/decisions/0042-the-suite-on-three-workers.md).
-Tests that take seconds are marked ``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
+`make test` runs the suite on two pytest-xdist workers, a file to a worker at a time (``-n 2 --dist loadfile
+--no-loadscope-reorder``: a module's fixtures, such as a daemon, are started once), taking files in collection
+order: RUN_FIRST below, then the files with a slow test, then the rest. Tests that take seconds are marked
+``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
 """
 
 from __future__ import annotations
@@ -14,63 +13,43 @@ import time
 
 import matplotlib
 import pytest
-from xdist.scheduler import LoadFileScheduling
 
 pytest.register_assert_rewrite("helpers")  # its assertions explain themselves as a test file's do
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-# The files that run in real time (a daemon against a simulated bench, a soak, a browser): one xdist group, so one
-# worker runs them one after another, never two at once (their assertions hold rates and reaction times to bounds,
-# and two daemons with their benches, recorders and browsers would share two cores), starting first: the chain is
-# the suite's longest (~360 s), and mostly waits on the wall clock.
-REAL_TIME = (
-    "test_demo_loop.py",  # 106 s: two runs through the daemon, diagnoses, a proposal
-    "test_campaign.py",  # 53 s
-    "test_soak.py",  # 49 s: a half-minute soak
-    "test_daemon_e2e.py",  # 43 s
-    "test_web.py",  # 38 s
+# The long files, in the order the two workers take them (seconds: one serial run on a 2-core machine, numba's cache
+# cold as in CI). First the long computations, both workers busy with fits and simulations; then the files that
+# run in real time (a daemon against a simulated bench, a soak, a browser), paired with each other rather than
+# with a fit that keeps both cores busy: their assertions hold rates and reaction times to bounds. The short files
+# come last, so the two workers finish together. Re-measure (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py
+# FILE`) when a file grows or shrinks by tens of seconds; a new long file belongs in the list. Why not three workers
+# with the real-time files on one: docs/decisions/0042-the-suite-on-three-workers.md (tried, rejected).
+RUN_FIRST = (
+    # computations
+    "test_rsf.py",  # 80 s: two of the user's paths
+    "test_propose_loop.py",  # 90 s: two experiment loops through the CLI on the reference rig
+    "test_recovery.py",  # 74 s
+    "test_diagnose.py",  # 74 s
+    "test_real_slider.py",  # 46 s
+    "test_refsim.py",  # 46 s
+    "test_robust.py",  # 34 s
+    "test_belt_model.py",  # 27 s
+    "test_paper000.py",  # 22 s
+    "test_archive.py",  # 50 s: Dask clusters
+    "test_diagnose_multi.py",  # 25 s
+    "test_propose.py",  # 16 s
+    # in real time
+    "test_demo_loop.py",  # 75 s: two runs through the daemon, diagnoses, a proposal
+    "test_campaign.py",  # 38 s
+    "test_daemon_e2e.py",  # 37 s
+    "test_soak.py",  # 46 s: a half-minute soak
+    "test_web.py",  # 28 s
     "test_reliability_web.py",  # 24 s
-    "test_soak_memory.py",  # 19 s
-    "test_reliability_daemon.py",  # 13 s
+    "test_reliability_daemon.py",  # 12 s
     "test_crash_recovery.py",  # 11 s
 )
-# The long computations, in the order the other two workers take them (seconds in a suite run on a 2-core machine:
-# `DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py FILE`). The short files come last, so the workers finish
-# together. Re-measure when a file grows or shrinks by tens of seconds; a new long file belongs in a list.
-RUN_FIRST = (
-    *REAL_TIME,
-    "test_propose_loop.py",  # 141 s: two experiment loops through the CLI on the reference rig
-    "test_rsf.py",  # 112 s: two of the user's paths
-    "test_diagnose.py",  # 97 s
-    "test_recovery.py",  # 88 s
-    "test_refsim.py",  # 62 s
-    "test_real_slider.py",  # 57 s
-    "test_archive.py",  # 54 s: Dask clusters
-    "test_robust.py",  # 42 s
-    "test_diagnose_multi.py",  # 27 s
-    "test_paper000.py",  # 25 s
-    "test_belt_model.py",  # 25 s
-    "test_propose.py",  # 10 s
-)
-
-
-class _RealTimeTogether(LoadFileScheduling):
-    """xdist's loadfile, a file to a worker at a time, except that REAL_TIME's files are one unit of work."""
-
-    def _split_scope(self, nodeid: str) -> str:
-        file = super()._split_scope(nodeid)
-        return "real-time" if file.rsplit("/", 1)[-1] in REAL_TIME else file
-
-
-@pytest.hookimpl(optionalhook=True)  # a run without xdist (``-p no:xdist``) does not know the hook
-def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile`` (``make test``) with the real-time files together: see _RealTimeTogether. (Not xdist's own
-    ``loadgroup`` with marks: under pytest 9.2 it groups nothing, as it renames a node id pytest no longer reads.)"""
-    if config.getvalue("dist") == "loadfile":
-        return _RealTimeTogether(config, log)
-    return None
 
 
 def pytest_collection_modifyitems(config, items):
