@@ -8,8 +8,11 @@ order: RUN_FIRST below, then the files with a slow test, then the rest. Tests th
 
 from __future__ import annotations
 
+import getpass
 import os
+import tempfile
 import time
+from pathlib import Path
 
 import matplotlib
 import pytest
@@ -58,6 +61,21 @@ def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(RUN_FIRST)}
     with_slow = {item.path.name for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank) + (item.path.name not in with_slow)))
+
+
+def pytest_sessionstart(session):
+    """Refuse to run, in one line, when an archive catalog would claim the tests' temporary files. A recording finds
+    its catalog in its folder or any parent (daq.io.archive.find_catalog, or $DAQ_ARCHIVE), so a catalog left in
+    /tmp by a recording written there took every file the tests wrote under /tmp/pytest-of-USER, and the archive
+    tests failed on rows that had gone elsewhere (seen on a fresh machine, 2026-11-27)."""
+    from daq.io.archive import ENV, find_catalog
+
+    base = session.config.option.basetemp or Path(tempfile.gettempdir()) / f"pytest-of-{getpass.getuser()}"
+    stray = find_catalog(Path(base))
+    if stray is not None:
+        why = f"${ENV} is set" if os.environ.get(ENV) else "it is in a parent folder of the tests' temporary files"
+        pytest.exit(f"an archive catalog at {stray} would take the files the tests write ({why}): remove it, "
+                    f"unset ${ENV}, or run with --basetemp in a folder without one above it", returncode=4)
 
 
 @pytest.hookimpl(hookwrapper=True)
