@@ -128,27 +128,32 @@ def test_seed_model_without_normal_load_gets_it_back_and_clean_data_gets_nothing
 
 
 def test_the_screening_cut_does_not_fall_between_near_equal_predictions():
-    """The score test's gains of the case below (noise seed 2): normal-load, 4th, 0.82 of the 3rd, gets its fit."""
+    """Three phenomena get fits by their predicted gains, and so does any other within SCREEN_TIE of the third."""
     k1, m = Candidate("mechanics", "k1_N_per_m"), Candidate("mechanics", "m_kg")
     body, rel = Candidate("effect", "accel-sign", "body"), Candidate("effect", "accel-sign", "relative")
-    belt, nl = Candidate("effect", "belt-speed", "measured"), Candidate("effect", "normal-load")
-    gains = {k1: 1.35e5, body: 1.11e5, rel: 2.0e4, belt: 7.42e4, nl: 6.11e4, m: 3.69e4}
-    assert to_fit(gains, first=True) == [k1, body, rel, belt, nl]  # m: 0.497 of the 3rd, below SCREEN_TIE...
+    belt, vs = Candidate("effect", "belt-speed", "measured"), Candidate("effect", "velocity-strengthening")
+    gains = {k1: 1.35e5, body: 1.11e5, rel: 2.0e4, belt: 7.42e4, vs: 6.11e4, m: 3.69e4}
+    assert to_fit(gains, first=True) == [k1, body, rel, belt, vs]  # vs: 0.82 of the third; m: 0.497, below 0.5...
     gains[m] = 1.01 * SCREEN_TIE * gains[belt]
-    assert to_fit(gains, first=True) == [k1, body, rel, belt, nl, m]  # ...and just above it, a fit
+    assert to_fit(gains, first=True) == [k1, body, rel, belt, vs, m]  # ...and just above it, a fit
     # the cut counts phenomena, not forms, and a phenomenon below `worth` is not fitted however close it is
-    assert to_fit({k1: 10.0, body: 9.0, rel: 9.0, belt: 8.0, nl: 7.0}, first=False, worth=7.5) == [k1, body, rel, belt]
+    assert to_fit({k1: 10.0, body: 9.0, rel: 9.0, belt: 8.0, vs: 7.0}, first=False, worth=7.5) == [k1, body, rel, belt]
 
 
 @pytest.mark.slow
-def test_a_missing_normal_load_is_named_when_the_score_test_ranks_it_fourth():
-    """The brake's seed model without normal-load at 100 Hz, noise seed 2: the score test put normal-load 4th
-    (0.82 of the 3rd); cut at three it was never fitted, and the diagnosis named accel-sign (body) and force-rate,
-    neither of them in the data (the recovery table's row that failed on one machine only, issue 30)."""
+def test_a_missing_normal_load_is_fitted_however_the_score_test_ranks_it():
+    """The brake's seed model without normal-load at 100 Hz, noise seed 8. Normal-load enters at a fixed weight (the
+    load is followed, or it is not), yet screening read it as a derivative: its secant from off to 0.8 ranked it
+    5th of the phenomena (0.45 of the third), it was never fitted, and the diagnosis named a stiffer spring and a
+    heavier block, neither in the data (the recovery row that failed on another machine, issue 30; on noise seeds
+    2 and 5 too). As a structural switch it is fitted in every step."""
     cfg = load_rig("brake-2dof")
-    rec = simulate(cfg, rate=100.0, seed=2, duration=45.0)
+    rec = simulate(cfg, rate=100.0, seed=8, duration=45.0)
     s = Session(rec, "sim", cfg)
-    d = diagnose(s, remove_effect(seed_model("brake-2dof"), "normal-load"))
+    lines = []
+    d = diagnose(s, remove_effect(seed_model("brake-2dof"), "normal-load"), progress=lines.append)
+    fitted = next(x for x in lines if x.startswith("screened")).split("; fitting ")[1]
+    assert "normal-load" in fitted.split(", "), fitted
     j = d.as_json(s)
     assert j["named"] == ["normal-load"] and j["undecided"] == [], d.summary
     assert j["final_reduction"] >= 0.9

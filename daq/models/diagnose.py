@@ -55,11 +55,9 @@ CAP_MS = 25.0  # per-window mean-square errors are capped at this many times the
 MAX_STEPS = 3  # effects added at most in one diagnosis
 FIT_PHENOMENA = 3  # per step, the phenomena with the largest predicted gains get full fits...
 SCREEN_TIE = 0.5  # ...and every other phenomenon predicted at least this share of the last of those: the score test
-# ranks loosely (the brake's seed model without normal-load, 100 Hz, noise seed 2: normal-load predicted 0.82 of
-# the third phenomenon's gain, left unfitted, so no rival to what was named: accel-sign (body) and force-rate,
-# both never there; fitted, it removes all of the excess. Decision 28's spring: 0.63 of the third). A cut among
-# near-equal predictions made the conclusion hang on a machine's last bits; a phenomenon within 2x of the cut
-# gets its fit, and with it its say as a rival (the margins, decision 28)
+# ranks loosely, and a cut among near-equal predictions made the conclusion hang on a machine's last bits (decision
+# 28: a spring predicted at 0.63 of the third phenomenon, fitted or not as the cut moved by one, changed what was
+# named). Within 2x of the cut a phenomenon gets its fit, and with it its say as a rival (the margins)
 FORM_SHARE = 0.0  # ...each in every form (the score test cannot choose between forms: they mirror each other:
 # accel-sign keyed to the body with -amp is nearly the relative form with +amp, yet the score test rated
 # them 20x apart on one recording, and the one rated lower was the better fit)

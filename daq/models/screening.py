@@ -90,7 +90,11 @@ def column(session: Session, current: Fitted, cand: Candidate, lin: Linearisatio
     values.update({k: v for k, v in current.values.items() if k in values})
     V = current.fit.start_values
     key = cand.strength(model)
-    if key is None:  # e.g. belt-speed driven by the measured speed: the switch itself is the column
+    if key is None or not model.params()[key].free:
+        # a structural switch, the column r(on) - r(off): no parameter (belt-speed driven by the measured speed), or
+        # one added at a fixed value (normal-load: the load is followed, or it is not; spec.FIXED). Read as a
+        # derivative, normal-load's secant from off to 0.8 ranked it 4th of the phenomena on 3 of 9 noise seeds
+        # (brake, 100 Hz, seed model without it): never fitted, and a spring and a mass named in its place
         r_off = lin.r if lin is not None else current.problem.residuals(current.values, fw, V).reshape(fw.size, -1)
         return Column(cand, pr.residuals(values, fw, V).reshape(fw.size, -1) - r_off, +1, switch=True)
     p = model.params()[key]
