@@ -93,7 +93,7 @@ def column(session: Session, current: Fitted, cand: Candidate, lin: Linearisatio
     if key is None or not model.params()[key].free:
         # a structural switch, the column r(on) - r(off): no parameter (belt-speed driven by the measured speed), or
         # one added at a fixed value (normal-load: the load is followed, or it is not; spec.FIXED). Read as a
-        # derivative, normal-load's secant from off to 0.8 ranked it 4th of the phenomena on 3 of 9 noise seeds
+        # derivative, normal-load's secant from off to 0.8 ranked it 4th-5th of the phenomena on 4 of 10 noise seeds
         # (brake, 100 Hz, seed model without it): never fitted, and a spring and a mass named in its place
         r_off = lin.r if lin is not None else current.problem.residuals(current.values, fw, V).reshape(fw.size, -1)
         return Column(cand, pr.residuals(values, fw, V).reshape(fw.size, -1) - r_off, +1, switch=True)
