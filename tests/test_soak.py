@@ -34,8 +34,16 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
         assert p["samples"] >= 4 and p["slope_mb_per_min"] is not None and p["bound_mb_per_min"] > 0, p
     streams = {s["stream"]: s for s in res["streams"]}
     assert {"motor", "laser_serial", "thermocouple"} <= set(streams), streams
+    # The pushed streams (the laser's frames, the thermocouple's lines) are paced by the device: each sample sent is
+    # counted, so their rate is the device's rate unless something was lost. The motor is polled: a poll the daemon
+    # could not make in time is skipped, not lost (nothing was measured; the poller does not burst to catch up), and
+    # how many it makes is the machine's speed. On a 2-core machine at half the speed of the one this bound was set
+    # on, beside a worker computing, it made 0.876 of 100 Hz, every exchange answered (2026-11-27). So: pushed streams
+    # within 10 %; the motor alive (> 0.5) and no exchange failed. Its rate is the soak report's, for a person to read.
+    assert res["drops"]["motor_failed_polls"] == 0, res["drops"]
     for s in streams.values():
-        assert s["nominal_hz"] and 0.9 < s["ratio"] < 1.1, (s, res["drops"])  # failed polls are among the drops
+        low = 0.5 if s["stream"] == "motor" else 0.9
+        assert s["nominal_hz"] and low < s["ratio"] < 1.1, (s, res["drops"])
     assert len(res["recordings"]) == 2 and res["lost_total"] == 0, (res["recordings"], res["lost"])
     assert all(x["closed_cleanly"] and x["lost_blocks"] == 0 and x["samples"] > 0 for x in res["recordings"])
     assert res["viewer"]["frames"] > 10 and res["ramps_run"] >= 1
