@@ -32,7 +32,7 @@ WINDOW_SPREAD = 3.0  # the common window is the slowest record's cycle, at most 
 # same number of samples (stacked windows are cut in samples) and each record is simulated at its own rate (each
 # part's Problem steps by its own 1/rate), so their windows differ in length by at most this share. A recording's
 # rate is read from its host timestamps: two daemon runs of one rig gave 1000 and 1000.01 Hz on a quiet machine,
-# and 999.994 and 997.464 Hz on CI's loaded one (the simulated rig fell 0.25 % behind the wall clock in the second)
+# and 999.994 and 997.464 Hz on CI's loaded one (the second's device clock mapped 0.25 % long onto the host's)
 RATE_TOLERANCE = 0.02
 RECORD_KEY = "#"  # per-record floors ride in the floor dict as "output#r" (it crosses a process boundary)
 
