@@ -13,7 +13,7 @@ demo: $(VENV)/.installed
 # under 10 minutes on a 2-core machine. `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=25
 
 acceptance: $(VENV)/.installed  # the long acceptance runs (tests/long, minutes each), outside `make test`
 	$(BIN)/python -m pytest tests/long
