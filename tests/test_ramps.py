@@ -11,6 +11,7 @@ from helpers import expect_error, write
 
 from daq.config import load_rig
 from daq.errors import InputError
+from daq.physics.effects import ramp_eval_side
 from daq.ramps import EXP_POINTS, Ramp, Segment, check_limits, constant_ramp, load_ramp, ramp_table, seed_ramp
 
 
@@ -408,3 +409,40 @@ def test_slide_hold_slide_stops_for_each_hold_and_slides_between():
     np.testing.assert_allclose(slides, 20.0, rtol=1e-12)  # 200 um at 10 um/s, five times
     assert len(slides) == 5
     check_limits(rt, rv, 1.0, 1.0, "shs")  # 1e-5 m/s in 10 ms: 1e-3 m/s^2
+
+
+# ---------------------------------------------------------------- the table as the integrator reads it
+
+
+def _bisected(rt: np.ndarray, rv: np.ndarray, t: float, left: bool) -> tuple[float, float]:
+    """ramp_eval_side's value and slope by the bisection it used before its guess-and-walk (the reference)."""
+    n = rt.size
+    if t <= rt[0]:
+        return rv[0], 0.0
+    if t > rt[-1] or (t == rt[-1] and not left):
+        return rv[-1], 0.0
+    lo, hi = 0, n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if rt[mid] < t or (rt[mid] == t and not left):
+            lo = mid
+        else:
+            hi = mid
+    slope = (rv[hi] - rv[lo]) / (rt[hi] - rt[lo])
+    return rv[lo] + slope * (t - rt[lo]), slope
+
+
+@pytest.mark.parametrize("table", ["even", "uneven", "steps"])
+def test_the_drive_table_is_read_at_the_same_row_as_by_bisection(table):
+    """The integrator's table lookup guesses the row in proportion and walks to it: on an evenly spaced record, on
+    an uneven table and on one with repeated times (a step in a programme), at its rows, between them and outside,
+    from either side: bit for bit what a bisection reads."""
+    rng = np.random.default_rng(3)
+    rt = {"even": np.arange(2001) * 1e-3,
+          "uneven": np.cumsum(rng.exponential(1.0, 300) ** 3),
+          "steps": np.repeat(np.arange(40, dtype=float), 2)}[table]
+    rv = rng.normal(0.0, 1.0, rt.size) if table != "steps" else rng.normal(0.0, 1.0, rt.size).cumsum()
+    ts = np.concatenate([rt, rng.uniform(rt[0] - 1.0, rt[-1] + 1.0, 3000), [rt[0], rt[-1]]])
+    for t in ts:
+        for left in (False, True):
+            assert ramp_eval_side(rt, rv, float(t), left) == _bisected(rt, rv, float(t), left), (t, left)
