@@ -269,6 +269,7 @@ class Starts:
     ww: np.ndarray  # each window's weight (window_weights)
     loss_name: str
     vscale: np.ndarray
+    broyden: bool = False  # carry each window's Jacobian by rank-one updates (StartsState.fresh says where it is)
     nfev: int = 0
 
     def resid(self, vel: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -299,10 +300,22 @@ class StartsState:
     enough: float
     active: np.ndarray
     fails: np.ndarray
+    fresh: np.ndarray | None = None  # per window: J is a finite-difference one at V (None: every window's is)
+
+    def __post_init__(self) -> None:
+        if self.fresh is None:
+            self.fresh = np.ones(self.V.shape[0], bool)
 
     @property
     def success(self) -> bool:
         return not self.active.any()
+
+
+def refresh_rows(ob: Starts, st: StartsState, rows: np.ndarray) -> None:
+    """Finite-difference Jacobians at the windows ``rows`` (one batched simulation per start slot)."""
+    if rows.size:
+        st.J[rows] = ob.jac(st.V[rows], rows, st.R[rows])
+        st.fresh[rows] = True
 
 
 def converged_rows(st: StartsState, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -317,14 +330,17 @@ def converged_rows(st: StartsState, rows: np.ndarray) -> tuple[np.ndarray, np.nd
     gn = 0.5 * np.einsum("wi,wi->w", g, np.linalg.solve(C + 1e-9 * D[:, :, None] * np.eye(nv)[None],
                                                           g[..., None])[..., 0])
     conv = gn <= np.maximum(1e-6 * st.cost[rows], st.enough)
-    st.active[rows[conv]] = False
+    carried = conv & ~st.fresh[rows]  # judged on a carried Jacobian: judged again on a fresh one next time round
+    st.active[rows[conv & ~carried]] = False
     keep = ~conv
-    return rows[keep], C[keep], g[keep], D[keep]
+    return rows[keep], C[keep], g[keep], D[keep], rows[carried]
 
 
-def starts_trial(ob: Starts, st: StartsState, rows: np.ndarray, C: np.ndarray, g: np.ndarray, D: np.ndarray) -> None:
+def starts_trial(ob: Starts, st: StartsState, rows: np.ndarray, C: np.ndarray, g: np.ndarray, D: np.ndarray) -> np.ndarray:
     """One damped trial per window of ``rows`` (one batched simulation); accepted where its loss falls; a window
-    ends on a tiny decrease, 12 failures in a row or a damping past 1e10; the others get a fresh Jacobian."""
+    ends on a tiny decrease, 12 failures in a row or a damping past 1e10, each judged on a fresh Jacobian. The
+    windows that go on get a fresh Jacobian, or with ``ob.broyden`` a Broyden update after an accepted step; a
+    failure on a carried one is no failure yet. Returns the windows that need a fresh Jacobian now."""
     nv = st.V.shape[1]
     Cd = C + st.lam[rows, None, None] * (D[:, :, None] * np.eye(nv)[None])
     dV = -np.linalg.solve(Cd, g[..., None])[..., 0]
@@ -333,18 +349,25 @@ def starts_trial(ob: Starts, st: StartsState, rows: np.ndarray, C: np.ndarray, g
     ct, Wt = ob.loss(Rt, rows)
     ok = np.isfinite(ct) & (ct < st.cost[rows])
     rel = np.where(ok, (st.cost[rows] - ct) / np.maximum(st.cost[rows], 1e-300), 0.0)
+    fresh = st.fresh[rows].copy()
     acc = rows[ok]
+    if ob.broyden and acc.size:  # per window: J += (dR - J dV) dV^T / |dV|^2
+        d = dV[ok]
+        u = (Rt[ok] - st.R[acc] - np.einsum("wrj,wj->wr", st.J[acc], d)) / np.maximum(
+            np.einsum("wj,wj->w", d, d), 1e-300)[:, None]
+        st.J[acc] += u[:, :, None] * d[:, None, :]
+        st.fresh[acc] = False
     st.V[acc], st.R[acc], st.cost[acc], st.W[acc] = Vt[ok], Rt[ok], ct[ok], Wt[ok]
     st.lam[acc] = np.maximum(st.lam[acc] / 5.0, 1e-7)
     st.lam[rows[~ok]] *= 4.0
     st.fails[acc] = 0
-    st.fails[rows[~ok]] += 1
-    done = ok & (rel < 1e-9)
-    done |= ~ok & ((st.fails[rows] >= 12) | (st.lam[rows] > 1e10))
+    st.fails[rows[~ok & fresh]] += 1
+    done = ok & (rel < 1e-9) & fresh
+    done |= ~ok & fresh & ((st.fails[rows] >= 12) | (st.lam[rows] > 1e10))
     st.active[rows[done]] = False
-    redo = rows[ok & ~done]
-    if redo.size:
-        st.J[redo] = ob.jac(st.V[redo], redo, st.R[redo])
+    if ob.broyden:
+        return rows[~done & ((~ok & ~fresh) | (ok & (rel < 1e-9)))]
+    return rows[ok & ~done]
 
 
 def solve_starts(ob: Starts, st: StartsState, max_iter: int) -> StartsState:
@@ -352,9 +375,13 @@ def solve_starts(ob: Starts, st: StartsState, max_iter: int) -> StartsState:
     success 1 + the start values' count)."""
     for _ in range(max_iter * 3):
         rows = np.flatnonzero(st.active)
+        again = np.zeros(0, int)
         if rows.size:
-            rows, C, g, D = converged_rows(st, rows)
-        if not rows.size:
+            rows, C, g, D, again = converged_rows(st, rows)
+        if not rows.size and not again.size:
             break
-        starts_trial(ob, st, rows, C, g, D)
+        if rows.size:
+            again = np.concatenate([again, starts_trial(ob, st, rows, C, g, D)])
+        refresh_rows(ob, st, again)
+    refresh_rows(ob, st, np.flatnonzero(~st.fresh))  # (the next stage starts from this Jacobian)
     return st

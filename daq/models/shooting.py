@@ -32,6 +32,7 @@ from .lm import STAGE_SHIFT
 from .windows import Windows
 
 BROYDEN = True  # carry the Jacobian by rank-one updates between finite-difference refreshes (see Problem.fit)
+BROYDEN_STARTS = True  # the same in each window's own start fit (fit_starts)
 
 
 
@@ -268,7 +269,7 @@ class Problem:
         V = np.array(V, dtype=float)
         ww = self.weights[windows] if self.weights is not None else np.ones(nw)
         ob = lm.Starts(self.scaled, values, windows, len(self.outputs), ww, loss_name,
-                       np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv))
+                       np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv), BROYDEN_STARTS)
         allr = np.arange(nw)
         handed = (nw > 0 and after is not None and after.z is not None and after.z.shape[0] == nw
                   and after.jac is not None)
