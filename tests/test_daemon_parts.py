@@ -156,6 +156,41 @@ def test_our_own_estop_is_no_news_and_an_unreadable_regulator_is_an_answer():
     assert g.read_regulator().error == "TimeoutError: no reply to STAT?"
 
 
+class SlowFirstAnswer(FakeMotor):
+    """A regulator whose next answer is held on the wire until released (a loaded line): it answers the state it
+    had when asked."""
+
+    def __init__(self, state: str) -> None:
+        super().__init__(state)
+        self.asked, self.release = threading.Event(), threading.Event()
+
+    def status(self) -> Status:
+        answer = super().status()
+        if not self.asked.is_set():
+            self.asked.set()
+            self.release.wait(5)
+        return answer
+
+
+def test_a_poll_answered_late_does_not_overwrite_the_e_stops_own_reading():
+    """The watch asks (RUNNING), the operator's e-stop latches the regulator and its handler reads it, then the
+    watch's answer arrives: status must end latched. Without one read at a time it ended RUNNING."""
+    motor = SlowFirstAnswer("RUNNING")
+    g, _ = _guard(motor)
+    g.halted = True
+    watch = threading.Thread(target=g.poll)
+    watch.start()
+    assert motor.asked.wait(5)
+    motor.estop()
+    handler = threading.Thread(target=g.read_regulator)
+    handler.start()
+    time.sleep(0.2)  # the handler waits for the watch's exchange to end (or, unguarded, reads ESTOP now)
+    motor.release.set()
+    watch.join(5)
+    handler.join(5)
+    assert g.regulator.state == "ESTOP" and g.regulator.latched
+
+
 def test_the_watch_ends_when_told():
     g, _ = _guard(FakeMotor())
     stop = threading.Event()

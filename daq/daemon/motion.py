@@ -35,6 +35,10 @@ class MotionGuard:
         self._motor: MotorDrive | None = None
         self._bench: BenchHandle | None = None
         self._publish: Publish | None = None
+        # one read of the regulator at a time, kept whole: without it the watch thread can read RUNNING, an
+        # e-stop's handler then read and keep ESTOP, and the watch keep its older RUNNING over it until its next
+        # poll (status unlatched with the regulator latched). Reentrant: a poll that sees a latch reads again.
+        self._reading = threading.RLock()
 
     def attach(self, motor: MotorDrive, bench: BenchHandle | None, publish: Publish) -> None:
         """The regulator to read (and the bench that counts its watchdog trips); where latch events go."""
@@ -42,6 +46,10 @@ class MotionGuard:
 
     def read_regulator(self) -> RegulatorReading:
         """STAT? from the regulator (and the bench's watchdog trip counter); kept for status."""
+        with self._reading:
+            return self._read_regulator()
+
+    def _read_regulator(self) -> RegulatorReading:
         now = utcnow()
         try:
             st = self._motor.status()
@@ -79,6 +87,10 @@ class MotionGuard:
 
     def poll(self) -> None:
         """One look at the regulator (see :meth:`watch`)."""
+        with self._reading:
+            self._poll()
+
+    def _poll(self) -> None:
         try:
             st = self._motor.status()
         except Exception:  # noqa: BLE001 - unreachable regulator: the motor stream's counters say so
