@@ -3,13 +3,15 @@
 Savitzky-Golay smoothing and differentiation (:func:`savgol` in samples, :func:`sg` in seconds),
 the white-noise level of a sampled signal (:func:`noise_sigma`), clock jitter seen in a model's residual
 (:func:`timing_noise`), block means (:func:`block_mean`), a bounded log of floats resident from the start
-(:class:`FloatRing`), and the spectral tools as the papers use them (:func:`paper_spectrogram`, :func:`dominant_frequency`).
+(:class:`FloatRing`), the spectral tools as the papers use them (:func:`paper_spectrogram`, :func:`dominant_frequency`), and
+a device clock's line on the host clock (:func:`clock_line`, the drivers' live one and the file reader's).
 """
 
 from __future__ import annotations
 
 import math
 from fractions import Fraction
+from typing import NamedTuple
 
 import numpy as np
 
@@ -359,3 +361,92 @@ def frequency_against_amplitude(amps: np.ndarray, freqs: np.ndarray) -> dict:
     out.update(amplitude_q25=float(q25), amplitude_q75=float(q75), line_Hz_small=float(np.median(freqs[amps <= q25])),
                line_Hz_large=float(np.median(freqs[amps >= q75])), rho=float(res.statistic), p=float(res.pvalue))
     return out
+
+
+# --- a device clock on the host clock: the one straight line the drivers (live) and the file reader (offline) fit
+#
+# An instrument stamps each sample with its own clock; the host sees it arrive later, by a delay that is never
+# negative, jitters, and now and then grows for seconds (a loaded host reads late, a simulated rig computes late).
+# The line host = offset + slope * device is fitted under every arrival (Moon, Skelly and Towsley's linear
+# programme for clock skew, on the lowest arrival of each bin): of all lines below every point, the one nearest
+# to them on average. That line is supported by the quickest arrivals before and after a slow spell, where a
+# least-squares fit through the delays, or through their lowest few per cent, follows the spell.
+#
+# Why the slope is bounded (``MAX_DRIFT``): no arrival-time fit can tell a delay that grows through a whole run
+# from a clock that runs slow. A run recorded on a loaded machine had its delay grow by 0.25 % of the run's
+# length; a fit that believed it stretched the record's time by 0.25 % (the closed-loop demo then refused the two
+# runs as sampled at different rates; stop 40's CI). A device clock is a crystal (+-100 ppm, aged and warm) and the
+# host's monotonic clock may be slewed by NTP (up to 500 ppm); a slope further from one than that is a delay, not a
+# clock. Decision record: docs/decisions/0043-device-clocks-and-late-physics.md.
+
+MAX_DRIFT = 5e-4  # the most a device clock and the host's may differ in rate [-]: crystal plus NTP slew
+BIN_S = 0.25  # the quickest arrival of each bin of device time carries the line [s]
+
+
+class ClockLine(NamedTuple):
+    """host = offset + slope * device; ``free_slope``: the slope before the bound (far from one: not a clock)."""
+
+    offset: float
+    slope: float
+    free_slope: float
+
+    def host(self, device_t: np.ndarray | float) -> np.ndarray | float:
+        return self.offset + self.slope * device_t
+
+
+def quickest_per_bin(device_t: np.ndarray, host_t: np.ndarray, bin_s: float = BIN_S) -> tuple[np.ndarray, np.ndarray]:
+    """The (device, host) pair of smallest delay in each bin of device time, in device-time order."""
+    d = np.asarray(device_t, dtype=np.float64)
+    h = np.asarray(host_t, dtype=np.float64)
+    order = np.argsort(d, kind="stable")
+    d, h = d[order], h[order]
+    k = np.floor((d - d[0]) / bin_s).astype(np.int64)
+    by_delay = np.lexsort((h - d, k))  # bin by bin, quickest first
+    kk = k[by_delay]
+    pick = by_delay[np.r_[True, kk[1:] != kk[:-1]]]
+    return d[pick], h[pick]
+
+
+def _lower_hull(x: np.ndarray, y: np.ndarray) -> list[int]:
+    """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain)."""
+    hull: list[int] = []
+    for i in range(x.size):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            if (x[b] - x[a]) * (y[i] - y[a]) - (y[b] - y[a]) * (x[i] - x[a]) <= 0:
+                hull.pop()
+            else:
+                break
+        if hull and x[i] == x[hull[-1]]:
+            continue  # same x, higher or equal y: not on the lower hull
+        hull.append(i)
+    return hull
+
+
+def clock_line(device_t: np.ndarray, host_t: np.ndarray, max_drift: float = MAX_DRIFT,
+               bin_s: float | None = BIN_S) -> ClockLine:
+    """The line under every bin's quickest arrival, nearest to them on average, its slope within 1 +- max_drift.
+
+    The unbounded optimum is the lower hull's edge over the bins' mean device time; the objective is convex in
+    the slope, so the bounded optimum is that slope clipped, with the offset that puts the line under every
+    point. Times are taken relative to the first pair, so that an hour of microseconds keeps its precision.
+    ``bin_s=None``: the pairs are already the quickest of their bins, in device-time order (the live estimator's).
+    """
+    if bin_s is None:
+        d, h = np.asarray(device_t, dtype=np.float64), np.asarray(host_t, dtype=np.float64)
+        order = np.argsort(d, kind="stable")
+        d, h = d[order], h[order]
+    else:
+        d, h = quickest_per_bin(device_t, host_t, bin_s)
+    d0, h0 = float(d[0]), float(h[0])
+    x, y = d - d0, h - h0
+    hull = _lower_hull(x, y)
+    free = 1.0
+    if len(hull) >= 2:
+        xs = x[hull]
+        j = int(np.clip(np.searchsorted(xs, x.mean(), side="right") - 1, 0, len(hull) - 2))
+        a, b = hull[j], hull[j + 1]
+        free = float((y[b] - y[a]) / (x[b] - x[a]))
+    slope = float(np.clip(free, 1.0 - max_drift, 1.0 + max_drift))
+    offset = h0 + float(np.min(y - slope * x)) - slope * d0
+    return ClockLine(offset, slope, free)

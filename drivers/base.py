@@ -20,6 +20,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from daq.signals import BIN_S, clock_line
 from daq.strict import Closed
 
 
@@ -85,36 +86,42 @@ class Backoff:
 
 
 class ClockSync:
-    """Estimates offset and drift of a device clock against the host's monotonic clock.
+    """Estimates offset and drift of a device clock against the host's monotonic clock, live.
 
     Host receive times carry a positive, jittery delay. In each bin of device time we keep
-    only the pair with the smallest delay (the lower envelope), and fit a line through
-    those minima: host = offset + device / (1 + drift), so ``drift`` is the device clock's
-    rate error (+300e-6 = the device runs 300 ppm fast). Robust to queueing delays; memory
-    is bounded by ``max_bins``.
+    only the pair with the smallest delay, and fit the line under them
+    (:func:`daq.signals.clock_line`, the same line the file reader fits offline, its drift
+    bounded to what clocks do): host = offset + device / (1 + drift), so ``drift`` is the
+    device clock's rate error (+300e-6 = the device runs 300 ppm fast). Memory is bounded by
+    ``max_bins``; the line is refitted when a bin is added (a few times a second), not per read.
     """
 
-    def __init__(self, bin_s: float = 0.25, max_bins: int = 2400) -> None:
+    def __init__(self, bin_s: float = BIN_S, max_bins: int = 2400) -> None:
         self.bin_s = bin_s
         self.max_bins = max_bins
         self._bins: collections.OrderedDict[int, tuple[float, float]] = collections.OrderedDict()
+        self._added = 0  # bins made so far
+        self._fitted: tuple[int, tuple[float, float] | None] = (-1, None)  # (bins made at the fit, its result)
 
     def update(self, device_t: float, host_t: float) -> None:
         k = int(device_t // self.bin_s)
         best = self._bins.get(k)
         if best is None or host_t - device_t < best[1] - best[0]:
             self._bins[k] = (device_t, host_t)
-            if best is None and len(self._bins) > self.max_bins:
-                self._bins.popitem(last=False)
+            if best is None:
+                self._added += 1
+                if len(self._bins) > self.max_bins:
+                    self._bins.popitem(last=False)
 
     def estimate(self) -> tuple[float, float] | None:
         """(offset [s], drift [-]) or None until two bins have data."""
         if len(self._bins) < 2:
             return None
-        d, h = np.array(list(self._bins.values())).T
-        d0 = d[0]
-        slope, icpt = np.polyfit(d - d0, h, 1)
-        return float(icpt - slope * d0), float(1.0 / slope - 1.0)
+        if self._fitted[0] != self._added:
+            d, h = np.array(list(self._bins.values())).T
+            line = clock_line(d, h, bin_s=None)  # already the quickest of each bin
+            self._fitted = (self._added, (line.offset, 1.0 / line.slope - 1.0))
+        return self._fitted[1]
 
     def to_host(self, device_t: float) -> float | None:
         est = self.estimate()

@@ -124,6 +124,8 @@ def _serve(args: argparse.Namespace) -> int:
                     print(f"sim: owner {args.owner_pid} gone, belt at rest: exiting", file=sys.stderr, flush=True)
                     break
     finally:
+        print(f"sim: the physics was behind the wall clock by up to {hw.rig.behind_max_s * 1e3:.1f} ms",
+              file=sys.stderr, flush=True)
         hw.stop()
         sock.close()
         ctx.term()
@@ -132,7 +134,8 @@ def _serve(args: argparse.Namespace) -> int:
 
 def _status(hw) -> dict[str, Any]:
     m = hw.motor
-    out: dict[str, Any] = {"ok": True, "t": hw.rig.t, "belt_speed": hw.rig.belt_speed, "target": hw.rig.target}
+    out: dict[str, Any] = {"ok": True, "t": hw.rig.t, "belt_speed": hw.rig.belt_speed, "target": hw.rig.target,
+                           "behind_max_s": hw.rig.behind_max_s}
     if m is not None:
         out.update(motor_state=m.state, setpoint=m.setpoint, watchdog_trips=m.watchdog_trips, commands=m.commands,
                    checksum_errors=m.checksum_errors)

@@ -52,20 +52,34 @@ class RealtimeRig:
                                           np.zeros(2))
         self.t = 0.0
         self.v_cmd = 0.0  # the drive's commanded surface speed (after the regulator's ramp limiter)
-        self.target = 0.0
+        self.target = 0.0  # the last command's target (what the regulator was last told)
         self.accel = cfg.drive.max_accel_m_per_s2
+        self._acting = (0.0, self.accel)  # the (target, accel) the drive follows at self.t
+        self._pending: list[tuple[float, float, float]] = []  # commands not yet reached: (t, target, accel)
         self.last_tick: Tick | None = None
         self._listeners: list[Listener] = []
         self._lock = threading.Lock()
         self._loop = BackgroundLoop(self._tick, "realtime-rig")
         self.wall0 = time.monotonic()
+        self.behind_max_s = 0.0  # the most the physics has been behind the wall clock, running on its own [s]
 
     # --- the motor's side
     def set_drive(self, target: float, accel: float | None = None) -> None:
-        """Ramp the drive toward target [m/s] at accel [m/s^2] (default: the rig's limit)."""
+        """Ramp the drive toward target [m/s] at accel [m/s^2] (default: the rig's limit), from the simulated
+        instant this call's wall-clock time stands for.
+
+        Why that instant and not the next tick: on a loaded machine the physics runs behind the wall clock
+        (measured here: up to 154 ms beside two busy processes; ``behind_max_s``). A command applied at the
+        next tick would act that much earlier in the record than the host saw it sent, as if the belt answered
+        before it was told; a real rig never runs late. Stepped by a caller (not running), there is no wall
+        clock to follow: the command acts from the next step.
+        """
+        target = max(0.0, float(target))
+        accel = float(accel if accel is not None else self.cfg.drive.max_accel_m_per_s2)
+        at = (time.monotonic() - self.wall0) * self.time_scale if self._loop.running else self.t
         with self._lock:
-            self.target = max(0.0, float(target))
-            self.accel = float(accel if accel is not None else self.cfg.drive.max_accel_m_per_s2)
+            self.target, self.accel = target, accel
+            self._pending.append((max(at, self.t), target, accel))
 
     @property
     def belt_speed(self) -> float:
@@ -87,15 +101,39 @@ class RealtimeRig:
 
     # --- stepping
     def _ramp(self, t0: float, dur: float) -> tuple[np.ndarray, np.ndarray]:
+        """The drive's commanded speed over [t0, t0 + dur] as knots (t, v): the regulator's ramp limiter
+        following each command from its own instant; one knot past the end holds the last speed."""
+        t_end = t0 + dur
         with self._lock:
-            target, accel, v = self.target, self.accel, self.v_cmd
-        t_reach = abs(target - v) / accel if accel > 0 else np.inf
-        if t_reach <= 0.0:
-            return np.array([t0, t0 + dur + 1.0]), np.array([v, v])
-        if t_reach >= dur:
-            v_end = v + np.sign(target - v) * accel * dur
-            return np.array([t0, t0 + dur, t0 + dur + 1.0]), np.array([v, v_end, v_end])
-        return np.array([t0, t0 + t_reach, t0 + dur + 1.0]), np.array([v, target, target])
+            v = self.v_cmd
+            (target, accel), todo = self._acting, [c for c in self._pending if c[0] < t_end]
+        knots_t, knots_v = [t0], [v]
+
+        def follow(t_from: float, t_to: float, v: float) -> float:  # limiter toward target over [t_from, t_to]
+            t_reach = abs(target - v) / accel if accel > 0 else np.inf
+            if t_reach >= t_to - t_from:
+                v_to = v + np.sign(target - v) * accel * (t_to - t_from)
+            else:
+                if t_reach > 0:
+                    knots_t.append(t_from + t_reach), knots_v.append(target)
+                v_to = target
+            if t_to > knots_t[-1]:
+                knots_t.append(t_to), knots_v.append(v_to)
+            return v_to
+
+        t = t0
+        for t_at, new_target, new_accel in todo:
+            v = follow(t, max(t, t_at), v)
+            t, target, accel = max(t, t_at), new_target, new_accel
+        v = follow(t, t_end, v)
+        knots_t.append(t_end + 1.0), knots_v.append(v)
+        return np.array(knots_t), np.array(knots_v)
+
+    def _reached(self, t: float) -> None:
+        """The commands due by simulated time t now act; the drive's speed is the limiter's at t."""
+        with self._lock:
+            while self._pending and self._pending[0][0] <= t:
+                self._acting = self._pending.pop(0)[1:]
 
     def step(self, duration: float) -> Tick:
         """Advance the physics by ``duration`` simulated seconds and hand the samples to listeners."""
@@ -109,6 +147,7 @@ class RealtimeRig:
         self.t = float(t[-1])
         with self._lock:
             self.v_cmd = float(np.interp(self.t, rt, rv))
+        self._reached(self.t)
         tick = Tick(t=t, host_time=self.wall0 + t / self.time_scale, channels=self.sim.channels(t, chunk),
                     truth=self.sim.truth(chunk))
         self.last_tick = tick
@@ -132,4 +171,6 @@ class RealtimeRig:
         delay = due - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        else:
+            self.behind_max_s = max(self.behind_max_s, -delay)
         self.step(self.tick_s * self.time_scale)

@@ -41,6 +41,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from daq.signals import clock_line
 from daq.errors import InputError
 from daq.io import h5recover
 from daq.io.files import atomic_path
@@ -315,23 +316,19 @@ def _device_time_on_host(device_t: np.ndarray, host_t: np.ndarray, info_rate=Non
     Why: live, the host time of each sample comes from an online clock estimate that steps
     (by up to a few ms) as it learns the offset and drift; at 0.17 m/s belt speed one
     millisecond is 170 um of apparent displacement error. Offline we fit host = a + b*device
-    once: through the lower envelope (host time = device time + the smallest transport
-    delay). Falls back to the recorded times when the device clock is not usable (it
+    once, under the quickest arrivals, its slope within a clock's tolerance
+    (:func:`daq.signals.clock_line`: a delay that grows on a loaded host does not stretch the
+    record's time). Falls back to the recorded times when the device clock is not usable (it
     restarted, or too few samples); a clock that restarts mid-run is left to the online times.
     """
     d = np.asarray(device_t, dtype=np.float64)
     h = np.asarray(host_t, dtype=np.float64)
     if d.size < 10 or not np.all(np.isfinite(d)) or not np.all(np.diff(d) > 0):
         return h
-    # lower envelope: the 5 % smallest residuals of a first straight-line fit, refitted
-    b, a = np.polyfit(d, h, 1)
-    r = h - (a + b * d)
-    low = r <= np.quantile(r, 0.05)
-    if low.sum() >= 2 and np.ptp(d[low]) > 0.5 * np.ptp(d):
-        b, a = np.polyfit(d[low], h[low], 1)
-    if not (0.99 < b < 1.01):  # not the same seconds: do not trust it
+    line = clock_line(d, h)
+    if not (0.99 < line.free_slope < 1.01):  # not the same seconds: do not trust it
         return h
-    return a + b * d
+    return line.host(d)
 
 
 def _read_stream(name: str, g: h5py.Group, src: str) -> _Stream | None:
