@@ -408,16 +408,18 @@ def quickest_per_bin(device_t: np.ndarray, host_t: np.ndarray, bin_s: float = BI
 
 
 def _lower_hull(x: np.ndarray, y: np.ndarray) -> list[int]:
-    """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain)."""
+    """Indices of the lower convex hull of points sorted by x (Andrew's monotone chain), on Python floats: numpy's
+    scalar indexing made it 9 ms for 2 400 bins, ten minutes of a live clock refitted four times a second."""
+    xs, ys = x.tolist(), y.tolist()
     hull: list[int] = []
-    for i in range(x.size):
+    for i, (xi, yi) in enumerate(zip(xs, ys)):
         while len(hull) >= 2:
             a, b = hull[-2], hull[-1]
-            if (x[b] - x[a]) * (y[i] - y[a]) - (y[b] - y[a]) * (x[i] - x[a]) <= 0:
+            if (xs[b] - xs[a]) * (yi - ys[a]) - (ys[b] - ys[a]) * (xi - xs[a]) <= 0:
                 hull.pop()
             else:
                 break
-        if hull and x[i] == x[hull[-1]]:
+        if hull and xi == xs[hull[-1]]:
             continue  # same x, higher or equal y: not on the lower hull
         hull.append(i)
     return hull

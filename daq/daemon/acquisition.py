@@ -288,7 +288,7 @@ class Acquisition:
         ``t``: a serial read returns many frames stamped with one host reception time, which
         would give the stream runs of equal times (the estimator's differentiator sees every
         block as a time gap). So, once the driver's clock fit exists, ``t`` is each frame's
-        device time mapped to the host clock (lower envelope of the reception delay: when it
+        device time mapped to the host clock (the line under the quickest receptions: when it
         was sampled, plus the link's minimum latency), kept non-decreasing; ``device_t`` stays
         the raw device clock.
         """
