@@ -30,8 +30,16 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
     assert json.loads((out / "soak.json").read_text()) == res
     roles = [p["role"] for p in res["processes"]]
     assert {"daemon", "estimator", "web", "sim bench"} <= set(roles) and roles.count("recorder") == 2, roles
-    for p in res["processes"]:  # each process sampled through its life, a slope and a bound for each
-        assert p["samples"] >= 4 and p["slope_mb_per_min"] is not None and p["bound_mb_per_min"] > 0, p
+    # each process sampled through its life, and a slope and a bound for each that lived 4 samples past its warm-up.
+    # A recorder of the rotation can start late: on a loaded machine (stop 42's clean clone) the new recorder took
+    # 10.7 s to come up, lived 3 s of the half minute, and could have no slope (the report says n/a). The rotation
+    # stops one recorder before it starts the next, so that start is also a hole between the two files.
+    for p in res["processes"]:
+        assert p["samples"] >= 4, p
+        if p["fit_samples"] >= 4 or p["role"] != "recorder" or p["from_min"] < res["warmup_min"]:
+            assert p["slope_mb_per_min"] is not None and p["bound_mb_per_min"] > 0, p
+        else:
+            assert p["slope_mb_per_min"] is None and p["bound_mb_per_min"] is None, p
     streams = {s["stream"]: s for s in res["streams"]}
     assert {"motor", "laser_serial", "thermocouple"} <= set(streams), streams
     # The pushed streams (the laser's frames, the thermocouple's lines) are paced by the device: each sample sent is
