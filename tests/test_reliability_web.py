@@ -228,10 +228,21 @@ def test_token_less_requests_are_rate_limited_per_address_and_the_operator_never
     operator_s = time.monotonic() - t1
     assert status == 200 and reply["ok"], reply
     ws_url = rig.url.replace("http://", "ws://") + "ws"
+    # a token-less page's socket is limited too (closed before accept: 403). The bucket refills a token every
+    # 1/RATE_HZ s, and on a loaded machine the operator's request above can take that long (stop 42's clean clone:
+    # the first handshake found a token back and was accepted), so handshakes are tried until one is refused; each
+    # accepted one used a token, so the refusal comes within a few
+    accepted, refused = 0, None
     limited = _stats(rig)["rate_limited"]
-    with pytest.raises(InvalidStatus) as refused:  # a token-less page's socket too (closed before accept: 403) ...
-        connect(ws_url, open_timeout=10)
-    assert refused.value.response.status_code == 403 and _stats(rig)["rate_limited"] == limited + 1
+    for _ in range(20):
+        try:
+            with connect(ws_url, open_timeout=10):
+                accepted += 1
+        except InvalidStatus as exc:
+            refused = exc
+            break
+    assert refused is not None and refused.response.status_code == 403, accepted
+    assert _stats(rig)["rate_limited"] == limited + 1, accepted  # an accepted handshake is not counted as limited
     with connect(ws_url, subprotocols=["daq.v1", f"daq.token.{rig.token}"], open_timeout=10) as op:
         op.send(json.dumps({"type": "view", "window_s": 10, "width": 500}))  # ... the operator's is served
         assert json.loads(op.recv(timeout=10))["type"] == "frame"
