@@ -119,7 +119,7 @@ class ClockSync:
         if len(self._bins) < 2:
             return None
         made = self._fitted[0]
-        if made != self._added and (len(self._bins) < 20 or self._added - made >= 4 or self._fitted[1] is None):
+        if made != self._added and (len(self._bins) < 20 or self._added - made >= 4):
             d, h = np.array(list(self._bins.values())).T
             line = clock_line(d, h, bin_s=None)  # already the quickest of each bin
             self._fitted = (self._added, (line.offset, 1.0 / line.slope - 1.0))

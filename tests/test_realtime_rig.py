@@ -7,15 +7,9 @@ import threading
 import time
 
 import numpy as np
+from helpers import wait_for
 
 from sim_backends.realtime import RealtimeRig, Tick
-
-
-def _wait_for(cond, timeout=10.0):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end and not cond():
-        time.sleep(0.01)
-    return cond()
 
 
 def test_a_command_sent_while_the_physics_is_late_acts_at_its_own_instant(brake_cfg):
@@ -32,13 +26,13 @@ def test_a_command_sent_while_the_physics_is_late_acts_at_its_own_instant(brake_
     rig.subscribe(listener)
     rig.start()
     try:
-        assert _wait_for(lambda: rig.t > 0.2)
+        wait_for(lambda: rig.t > 0.2, 10.0, "the rig running")
         stall.set()
         time.sleep(0.2)  # the physics thread sleeps in the listener
         sent = (time.monotonic() - rig.wall0) * rig.time_scale
         behind = sent - rig.t
         rig.set_drive(0.1)
-        assert _wait_for(lambda: rig.t > sent + 0.2)
+        wait_for(lambda: rig.t > sent + 0.2, 10.0, "the physics past the command")
     finally:
         rig.stop()
     t = np.concatenate([k.t for k in ticks])

@@ -41,11 +41,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from daq.signals import clock_line
 from daq.errors import InputError
 from daq.io import h5recover
 from daq.io.files import atomic_path
 from daq.io.recording import Recording  # its home since decision 37; still importable from here
+from daq.signals import clock_line
 
 FORMAT_SIMPLE = "friction-daq recording 1"
 FORMAT_RUN = "friction-daq run 1"
