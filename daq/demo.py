@@ -31,6 +31,7 @@ from daq.models.compare import ERROR_DEFINITION, compare
 from daq.models.diagnose import add_command, diagnose
 from daq.models import design
 from daq.models.figures import compare_figure, diagnose_figure, history_figure, proposal_figure, spectrogram_figure
+from daq.models.margins import MIN_EXCESS
 from daq.models.multi_session import MultiSession
 from daq.models.programmes import write_programme
 from daq.models.session import Session
@@ -246,6 +247,10 @@ def _how_it_fell(question: dict, res: dict) -> str:
         between = "; ".join(" or ".join(u["between"]) for u in res["undecided"])
         return f"the question fell part of the way: named {', '.join(named) or 'nothing'}, still undecided: {between}"
     hit = [r for r in rivals if r in named or any(n.split(" (")[0] == r.split(" (")[0] for n in named)]
+    floor = res["noise_floor"]
+    if not named and floor and res["final_error"] > (1.0 + MIN_EXCESS) * floor:  # no answer: not "nothing more"
+        return (f"the question did not fall: nothing is named, and the error stands at "
+                f"{res['final_error'] / floor:.1f}x the noise floor")
     if hit:
         return f"the question fell to {', '.join(hit)} (named: {', '.join(named)})"
     other = [n for n in named if n not in hit]
