@@ -84,6 +84,36 @@ def test_ctl_ramp_runs_and_the_recording_holds_every_channel_and_the_estimator(d
         assert kinds.count("ramp_segment") >= 6 and "ramp_finished" in kinds and "note" in kinds
 
 
+def test_record_rotate_starts_the_next_file_before_the_last_one_closes(daemon):
+    """Make before break (handlers.handle_record_rotate): the second file's recorder is up before the first one
+    stops, so the two files overlap and no laser frame falls between them; both close cleanly and say so. With
+    nothing recording there is nothing to rotate, and a rotation to a bad path is refused with the first file
+    still recording: nothing started, nothing lost."""
+    r = daemon.ctl("record", "rotate", "--path", str(daemon.tmp / "none.h5"))
+    assert r.returncode != 0 and "not recording" in r.stderr + r.stdout, r.stderr + r.stdout
+    assert not (daemon.tmp / "none.h5").exists() and daemon.status()["recording"] is None
+    first, second = daemon.tmp / "rot-1.h5", daemon.tmp / "rot-2.h5"
+    assert daemon.ctl("record", "start", "--path", str(first)).returncode == 0
+    r = daemon.ctl("record", "rotate", "--path", "/proc/self/run.h5")  # a rotation that fails loses nothing
+    assert r.returncode == 2 and "cannot write in" in r.stderr, r.stderr
+    assert daemon.status()["recording"]["path"] == str(first)
+    time.sleep(1.0)
+    r = daemon.ctl("record", "rotate", "--path", str(second))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"recording to {second}; closed {first}"
+    assert daemon.status()["recording"]["path"] == str(second)
+    time.sleep(1.0)
+    assert daemon.ctl("record", "stop").returncode == 0
+    with h5py.File(first) as a, h5py.File(second) as b:  # both closed cleanly: a plain open works
+        assert event_kinds(a)[-1] == "stop" and event_kinds(b)[-1] == "stop"
+        assert "record_rotate" in event_kinds(a) and "record_rotate" in event_kinds(b)
+        ta, tb = a["streams/laser_serial/device_t"][()], b["streams/laser_serial/device_t"][()]
+        rate = a["streams/laser_serial"].attrs["rate_hz"]
+        assert tb[0] < ta[-1]  # they overlap...
+        joined = np.union1d(ta, tb)  # ...and together miss no frame
+        assert np.max(np.diff(joined)) < 1.5 / rate
+
+
 def test_ramp_beyond_limits_is_refused_before_motion(daemon):
     ramp = daemon.tmp / "fast.toml"
     ramp.write_text(TOO_FAST)

@@ -282,7 +282,8 @@ def test_the_handlers_stop_note_and_refuse_a_reset_while_the_belt_moves():
     motor = FakeMotor("ESTOP", measured=0.2)
     d = _fake_daemon(motor)
     h = ControlHandlers(d)
-    assert set(h.table()) == {"status", "ramp", "stop", "estop", "reset", "record_start", "record_stop", "note"}
+    assert set(h.table()) == {"status", "ramp", "stop", "estop", "reset", "record_start", "record_stop",
+                              "record_rotate", "note"}
     assert h.handle_note({"text": "hello"}) == {"noted": "hello"}
     assert h.handle_stop({}) == {"stopping": True} and motor.calls == ["stop"]
     with pytest.raises(MotionRefused, match="the belt is moving"):

@@ -33,7 +33,8 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
     # each process sampled through its life, and a slope and a bound for each that lived 4 samples past its warm-up.
     # A recorder of the rotation can start late: on a loaded machine (stop 42's clean clone) the new recorder took
     # 10.7 s to come up, lived 3 s of the half minute, and could have no slope (the report says n/a). The rotation
-    # stops one recorder before it starts the next, so that start is also a hole between the two files.
+    # then stopped one recorder before it started the next, so that start was also a hole between the two files;
+    # it now starts the next first (record_rotate), and the files overlap (asserted below).
     for p in res["processes"]:
         assert p["samples"] >= 4, p
         if p["fit_samples"] >= 4 or p["role"] != "recorder" or p["from_min"] < res["warmup_min"]:
@@ -55,6 +56,8 @@ def test_a_half_minute_soak_reports_every_process_and_stream_and_loses_nothing(t
         assert s["nominal_hz"] and low < s["ratio"] < 1.1, (s, res["drops"])
     assert len(res["recordings"]) == 2 and res["lost_total"] == 0, (res["recordings"], res["lost"])
     assert all(x["closed_cleanly"] and x["lost_blocks"] == 0 and x["samples"] > 0 for x in res["recordings"])
+    # make before break: the second file's first motor sample comes before the first file's last one
+    assert res["recordings"][0]["gap_s"] is None and res["recordings"][1]["gap_s"] < 0, res["recordings"]
     assert res["viewer"]["frames"] > 10 and res["ramps_run"] >= 1
     assert res["stalled_viewer"]["connected_to_the_end"] and res["stalled_viewer"]["frames_sent"] <= 2
     assert res["tracebacks"] == 0 and res["daemon_exit"] is None

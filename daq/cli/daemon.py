@@ -72,9 +72,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     cs.add_parser("reset", help="at standstill: clear the regulator's latch (e-stop, watchdog) and acknowledge "
                                 "an unclean end of the last session; motion is refused until then").set_defaults(
         func=cmd_ctl_reset)
-    rec = cs.add_parser("record", help="record start [--path FILE] | record stop")
-    rec.add_argument("what", choices=["start", "stop"])
-    rec.add_argument("--path", help="run file (record start; default DATA_DIR/RIG-STAMP.h5)")
+    rec = cs.add_parser("record", help="record start [--path FILE] | record stop | record rotate [--path FILE] (the "
+                                       "next file starts before this one closes: no hole between them)")
+    rec.add_argument("what", choices=["start", "stop", "rotate"])
+    rec.add_argument("--path", help="run file (record start/rotate; default DATA_DIR/RIG-STAMP.h5)")
     rec.set_defaults(func=cmd_ctl_record)
     n = cs.add_parser("note", help="an operator note in the run's event table")
     n.add_argument("text", nargs="+")
@@ -411,10 +412,13 @@ def cmd_ctl_note(args: argparse.Namespace) -> int:
 
 def cmd_ctl_record(args: argparse.Namespace) -> int:
     def run(a):
+        kw = {"path": str(Path(a.path).absolute())} if a.path else {}
         if a.what == "start":
-            kw = {"path": str(Path(a.path).absolute())} if a.path else {}
             res = _call(a, "record_start", **kw)
             print(f"recording to {res['recording']}")
+        elif a.what == "rotate":
+            res = _call(a, "record_rotate", **kw)
+            print(f"recording to {res['recording']}; closed {res['closed']}")
         else:
             res = _call(a, "record_stop")
             print(f"closed {res['closed']}")

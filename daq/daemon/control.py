@@ -52,7 +52,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from daq.errors import InputError
 from daq.strict import Closed
 
-Op = Literal["status", "ramp", "stop", "estop", "reset", "record_start", "record_stop", "note"]
+Op = Literal["status", "ramp", "stop", "estop", "reset", "record_start", "record_stop", "record_rotate", "note"]
 READ_ONLY_OPS: frozenset[str] = frozenset({"status"})
 FORBIDDEN = "forbidden: observers may only read status"
 MAX_MSG_BYTES = 1 << 20  # default request limit: a control request is small; refuse anything that could exhaust memory
@@ -145,7 +145,7 @@ class RecordStartArgs(_Args):
 
 ARGS_MODELS: dict[str, type[_Args]] = {
     "status": NoArgs, "ramp": RampArgs, "stop": NoArgs, "estop": NoArgs, "reset": NoArgs,
-    "record_start": RecordStartArgs, "record_stop": NoArgs, "note": NoteArgs,
+    "record_start": RecordStartArgs, "record_stop": NoArgs, "record_rotate": RecordStartArgs, "note": NoteArgs,
 }
 
 

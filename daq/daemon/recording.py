@@ -75,6 +75,20 @@ class RecordingSlot:
             rec.watch(self._on_exit)
         return rec, lost
 
+    def rotate(self, path: Path, endpoints: list[str], rig_arg: str, flush_s: float,
+               timeout: float) -> tuple[RecorderProcess, RecorderProcess]:
+        """A recorder for ``path`` put in the slot while the running one goes on writing (make before break): the
+        new one has seen our data when this returns, so the caller stops the old one with no hole between the two
+        files. Returns (new, old); RuntimeError if nothing is recording (then there is nothing to rotate)."""
+        with self._lock:
+            old = self.recorder
+            if old is None or not old.alive:
+                raise RuntimeError("not recording: nothing to rotate (record_start begins a recording)")
+            rec = RecorderProcess(path, rig_arg, endpoints, flush_s, timeout)
+            self.recorder = rec
+            rec.watch(self._on_exit)
+        return rec, old
+
     def take(self) -> RecorderProcess:
         """The running recorder, out of the slot (the caller stops it); RuntimeError if there is none."""
         with self._lock:

@@ -109,6 +109,10 @@ class RecordingResult(Strict):
     samples: int | None  # the recorder's own count, from the file's stop event
     lost_blocks: int | None
     closed_cleanly: bool  # a stop event is the last row
+    motor_t: tuple[float, float] | None = None  # host time of its first and last motor sample
+    # from the previous file's last motor sample to this one's first (negative: they overlap); a rotation starts
+    # the next file before the last one closes, so this is never a hole (None: the first file)
+    gap_s: float | None = None
 
 
 class SoakResult(Strict):
@@ -277,13 +281,16 @@ def _recording_result(path: Path) -> RecordingResult:
         with h5py.File(path, "r") as f:
             kinds = [k.decode() if isinstance(k, bytes) else k for k in f["events"]["kind"]]
             details = [d.decode() if isinstance(d, bytes) else d for d in f["events"]["detail"]]
+            t = f["streams/motor/t"] if "streams/motor/t" in f else None
+            motor_t = (float(t[0]), float(t[-1])) if t is not None and t.size else None
     except (OSError, KeyError) as exc:
         return RecordingResult(path=f"{path} (unreadable: {type(exc).__name__})", samples=None, lost_blocks=None,
                                closed_cleanly=False)
     stop = next((d for k, d in zip(reversed(kinds), reversed(details), strict=True) if k == "stop"), "")
     m = re.match(r"(\d+) samples, (\d+) lost blocks", stop)
     return RecordingResult(path=str(path), samples=int(m.group(1)) if m else None,
-                           lost_blocks=int(m.group(2)) if m else None, closed_cleanly=bool(kinds) and kinds[-1] == "stop")
+                           lost_blocks=int(m.group(2)) if m else None, closed_cleanly=bool(kinds) and kinds[-1] == "stop",
+                           motor_t=motor_t)
 
 
 def _memory(series: dict[tuple[str, int], list[tuple[float, float]]], warmup: float) -> list[ProcessMemory]:
@@ -355,11 +362,11 @@ class _SoakRun:
         stalled.send(json.dumps({"type": "view", "window_s": 10, "width": 1500}))
         self.viewer.start()
 
-    def record_start(self) -> None:
+    def record_start(self, op: str = "record_start") -> None:
         path = self.out / "data" / f"soak-{len(self.recordings) + 1:03d}.h5"
-        r = self.ctl.request("record_start", path=str(path))
+        r = self.ctl.request(op, path=str(path))
         if not r.ok:
-            raise RuntimeError(f"record_start refused: {r.error}")
+            raise RuntimeError(f"{op} refused: {r.error}")
         self.recordings.append(path)
 
     def loop(self) -> None:
@@ -385,9 +392,7 @@ class _SoakRun:
             if now >= t_end:
                 break
             if now >= next_rotation:
-                with contextlib.suppress(TimeoutError):
-                    self.ctl.request("record_stop")
-                self.record_start()
+                self.record_start("record_rotate")  # the next file before this one closes: no hole between
                 next_rotation += cfg.record_every_min * 60
             if now >= next_log:
                 self._log_minute(minute, every)
@@ -489,6 +494,8 @@ def _result(cfg: SoakCfg, started_at: str, measured_min: float, nominal: dict[st
         streams.append(StreamRate(stream=name, nominal_hz=nom, measured_hz=hz, ratio=hz / nom if nom else None,
                                   samples=n))
     recs = [_recording_result(p) for p in recordings]
+    recs[1:] = [b.model_copy(update={"gap_s": b.motor_t[0] - a.motor_t[1]}) if a.motor_t and b.motor_t else b
+                for a, b in zip(recs, recs[1:])]
     drops = {k: int(v or 0) for k, v in status.get("drops", {}).items()}
     lost = {"recorder": sum(r.lost_blocks or 0 for r in recs), "bus_queue": drops.get("bus_queue", 0),
             "estimator": drops.get("estimator_lost_blocks", 0), "web": int(web_stats.get("bus_lost_blocks") or 0)}
@@ -530,7 +537,8 @@ def report(result: SoakResult) -> str:
     lines.append("lost blocks: " + "  ".join(f"{k} {v}" for k, v in result.lost.items()) + f"  total {result.lost_total}")
     for r in result.recordings:
         lines.append(f"  {r.path}: {r.samples} samples, {r.lost_blocks} lost blocks, "
-                     f"{'closed cleanly' if r.closed_cleanly else 'NOT CLOSED CLEANLY'}")
+                     f"{'closed cleanly' if r.closed_cleanly else 'NOT CLOSED CLEANLY'}"
+                     + (f"; from the file before: {r.gap_s:+.3f} s" if r.gap_s is not None else ""))
     lines.append(f"viewer: {result.viewer['frames']} frames read, {result.viewer['reconnects']} reconnects; stalled "
                  f"viewer: connected to the end {result.stalled_viewer['connected_to_the_end']}, "
                  f"{result.stalled_viewer['frames_sent']} frame(s) sent to it")
