@@ -229,6 +229,26 @@ def test_the_slot_holds_one_recorder_and_forgets_nothing_it_did_not_stop():
     assert slot.take() is rec and slot.recorder is None
 
 
+
+def test_a_rotation_whose_new_recorder_ends_as_it_starts_keeps_the_old_one(monkeypatch):
+    """RecordingSlot.rotate puts the new recorder in the slot only once it runs: one that ended before it saw our
+    data (a child that said 'ready' and died) leaves the old one recording, and the operator gets the error."""
+    slot = RecordingSlot(threading.RLock(), lambda *ev: None, lambda: None)
+    with pytest.raises(RuntimeError, match="not recording: nothing to rotate"):
+        slot.rotate(Path("/b.h5"), ["tcp://127.0.0.1:1"], "rig-a", 0.25, 5.0)
+    old = SimpleNamespace(path=Path("/a.h5"), pid=7, alive=True, stopping=False)
+    slot.recorder = old
+    started = []
+
+    def dead_at_start(path, *args):
+        started.append(path)
+        return SimpleNamespace(path=path, pid=8, alive=False, closed_line="", progress="recorder: 0 samples")
+    monkeypatch.setattr("daq.daemon.recording.RecorderProcess", dead_at_start)
+    with pytest.raises(RuntimeError, match="ended as it started .*still recording to /a.h5"):
+        slot.rotate(Path("/b.h5"), ["tcp://127.0.0.1:1"], "rig-a", 0.25, 5.0)
+    assert started == [Path("/b.h5")] and slot.recorder is old
+
+
 # ----------------------------------------------------------------------------- status and handlers
 
 

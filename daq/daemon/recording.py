@@ -85,6 +85,9 @@ class RecordingSlot:
             if old is None or not old.alive:
                 raise RuntimeError("not recording: nothing to rotate (record_start begins a recording)")
             rec = RecorderProcess(path, rig_arg, endpoints, flush_s, timeout)
+            if not rec.alive:  # it ended before it saw our data: the old one goes on, nothing is lost
+                raise RuntimeError(f"the recorder for {path} ended as it started ({rec.closed_line or rec.progress}); "
+                                   f"still recording to {old.path}")
             self.recorder = rec
             rec.watch(self._on_exit)
         return rec, old
