@@ -314,6 +314,28 @@ class Diagnosis:
         return diagnosis_json(self, session)
 
 
+def _screen(session: Session, current: Fitted, cands: list[Candidate]):
+    """The score test of every candidate at the current fit: (linearisation, columns, each column's time, predicted
+    gains). A column is one simulation with the candidate in: its time is the guess at the candidate fit's cost."""
+    lin = linearise(current)
+    cols, cost = {}, {}
+    for c in cands:
+        t0 = time.perf_counter()
+        cols[c] = column(session, current, c, lin)
+        cost[c] = time.perf_counter() - t0
+    return lin, cols, cost, {c: predicted_gain(lin, [cols[c]]) for c in cands}
+
+
+def switch_siblings(cands: list[Candidate], chosen: list[Candidate], cols: dict, scored: list[Scored]
+                    ) -> list[Candidate]:
+    """The forms left unfitted of a phenomenon whose structural switch passed. A switch that passes says its
+    phenomenon is there; which form is a fit's question, not the score test's (FORM_SHARE). Seen: a lagging belt on
+    a loaded machine's record, the measured drive passing at 63 % of the excess while the score test put the lag's
+    own form at 114 against a cut of 917; fitted, the lag took the error to the floor (decision 15's note)."""
+    return [c for c in cands if c not in chosen and any(
+        s.cands[0].phenomenon == c.phenomenon and cols[s.cands[0]].switch and passes(s) for s in scored)]
+
+
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
           first: bool, cold: dict[str, float], seen: dict | None = None,
           prefix: tuple[Candidate, ...] = ()) -> tuple[list[Scored], list[Screened], Scored | None]:
@@ -323,13 +345,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     cands = candidates_for(current.model)
     if not cands:
         return [], [], None
-    lin = linearise(current)
-    cols, cost = {}, {}
-    for c in cands:  # (each column is one simulation with the candidate in: its time is the guess at a fit's cost)
-        t0 = time.perf_counter()
-        cols[c] = column(session, current, c, lin)
-        cost[c] = time.perf_counter() - t0
-    gains = {c: predicted_gain(lin, [cols[c]]) for c in cands}
+    lin, cols, cost, gains = _screen(session, current, cands)
     worth = MIN_GAIN
     if not first:  # the excess left, in cost units: a step must be predicted to reach a fair share of it
         e, f = current.rms(session.primary), floor_holder[session.primary]
@@ -350,12 +366,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     keep_fits(seen, prefix, fits)
     floor = floor_holder[session.primary]
     scored = [score(base, current, fits[(c,)], (c,), floor, session, gains[c]) for c in chosen]
-    # a switch that passes says its phenomenon is there; which form is a fit's question, not the score test's
-    # (FORM_SHARE): its other forms get their fits too. Seen: a lagging belt on a loaded machine's record, the
-    # measured drive passing at 63 % of the excess while the score test put the lag's own form at 114 against a
-    # cut of 917; fitted, the lag took the error to the floor
-    siblings = [c for c in cands if c not in chosen and any(
-        s.cands[0].phenomenon == c.phenomenon and cols[s.cands[0]].switch and passes(s) for s in scored)]
+    siblings = switch_siblings(cands, chosen, cols, scored)
     if siblings:
         say(f"a switch passes: fitting its other forms too: {', '.join(c.label for c in siblings)}")
         more = fit_extensions(session, current, [(c,) for c in siblings], workers, cold=cold, cost=cost,
