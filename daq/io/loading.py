@@ -87,6 +87,7 @@ def uniform(rec: Recording, source: str) -> Recording:
     tu = t[0] + np.arange(int(math.floor((t[-1] - t[0]) * rate)) + 1) / rate
     out = {}
     filled: dict[str, int] = {}
+    spans: dict[str, list[list[float]]] = {}
     for k, v in ch.items():
         v = v[keep]
         ok = np.isfinite(v)
@@ -95,11 +96,20 @@ def uniform(rec: Recording, source: str) -> Recording:
             real = t[ok]
             nxt = np.clip(np.searchsorted(real, tu, side="right"), 1, real.size - 1)
             hole = real[nxt] - real[nxt - 1] > GAP_PERIODS_FILLED / rate
-            inside = (tu - real[nxt - 1] > 0.25 / rate) & (real[nxt] - tu > 0.25 / rate)
-            n = int(np.sum(hole & inside))
+            inside = hole & (tu - real[nxt - 1] > 0.25 / rate) & (real[nxt] - tu > 0.25 / rate)
+            n = int(np.sum(inside))
             if n:
                 filled[k] = n
+                spans[k] = filled_spans(tu, inside)
     meta = {**rec.meta, "resampled_Hz": rate}
     if filled:
         meta["filled"] = filled
+        meta["filled_spans"] = spans
     return Recording(rec.rig, tu, out, rec.units, meta, {})
+
+
+def filled_spans(t: np.ndarray, filled: np.ndarray) -> list[list[float]]:
+    """[first, last] time of each run of filled-in samples: where a model's channel is a straight line drawn
+    across a hole, not a measurement (windows over one are flagged, daq/models/windows.py)."""
+    edges = np.diff(np.concatenate([[0], filled.astype(np.int8), [0]]))
+    return [[float(t[a]), float(t[b - 1])] for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1))]

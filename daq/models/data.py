@@ -31,6 +31,8 @@ from daq.sim.rigs import SimRig
 
 from .cycle_features import load_cycles
 
+DRIVE_SMOOTH_S = 0.25  # the measured drive is smoothed over +-this: drive ripple and lag live at seconds, the
+# tachometer's noise at milliseconds
 SPIKE_SIGMAS = 10.0  # a run of samples this many noise levels off the cubic through its neighbours is a spike
 FREE_POSITIONS_BELOW_HZ = 750.0  # at 1 kHz a lightly smoothed start position is ~sigma/3 off, at 500 Hz ~sigma; between
 # the two common rates, so that a recording at 999.9 or 1000.1 Hz (a daemon's measured rate) is treated as 1 kHz
@@ -215,8 +217,7 @@ class RigData(ABC):
 
     def _drive(self, rec: Recording, t: np.ndarray, rate: float, measured: np.ndarray,
                command_channel: str | None) -> tuple[np.ndarray, np.ndarray, str]:
-        # drive ripple and lag live at seconds; +-0.25 s keeps them and removes the tachometer's noise
-        smooth = sg(measured, rate, 0.25, degree=3)
+        smooth = sg(measured, rate, DRIVE_SMOOTH_S, degree=3)
         if command_channel and command_channel in rec.channels and np.all(np.isfinite(rec.channels[command_channel])):
             return smooth, np.asarray(rec.channels[command_channel], dtype=float), command_channel
         if is_programme(measured):
