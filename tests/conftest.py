@@ -22,36 +22,37 @@ pytest.register_assert_rewrite("helpers")  # its assertions explain themselves a
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-# The long files, in the order the two workers take them (seconds: one serial run on a 2-core machine, numba's cache
-# cold as in CI). First the long computations, both workers busy with fits and simulations; then the files that
-# run in real time (a daemon against a simulated bench, a soak, a browser), paired with each other rather than
-# with a fit that keeps both cores busy: their assertions hold rates and reaction times to bounds. The short files
-# come last, so the two workers finish together. Re-measure (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py
-# FILE`) when a file grows or shrinks by tens of seconds; a new long file belongs in the list. Why not three workers
-# with the real-time files on one: docs/decisions/0042-the-suite-on-three-workers.md (tried, rejected).
+# The long files, in the order the two workers take them (seconds: the file's tests summed, `make test` on a 2-core
+# machine with both workers busy, 2026-11-28: 2663 s in all, 1363 s of wall time). First the long computations, both
+# workers busy with fits and simulations; then the files that run in real time (a daemon against a simulated bench, a
+# soak, a browser), paired with each other rather than with a fit that keeps both cores busy: their assertions hold
+# rates and reaction times to bounds. The short files come last, so the two workers finish together. Re-measure
+# (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py FILE`) when a file grows or shrinks by tens of seconds; a
+# new long file belongs in the list. Why not three workers with the real-time files on one:
+# docs/decisions/0042-the-suite-on-three-workers.md (tried, rejected).
 RUN_FIRST = (
     # computations
-    "test_rsf.py",  # 80 s: two of the user's paths
-    "test_propose_loop.py",  # 90 s: two experiment loops through the CLI on the reference rig
-    "test_recovery.py",  # 74 s
-    "test_diagnose.py",  # 74 s
-    "test_real_slider.py",  # 46 s
-    "test_refsim.py",  # 46 s
-    "test_robust.py",  # 34 s
-    "test_belt_model.py",  # 27 s
-    "test_paper000.py",  # 22 s
-    "test_archive.py",  # 50 s: Dask clusters
-    "test_diagnose_multi.py",  # 25 s
-    "test_propose.py",  # 16 s
+    "test_rsf.py",  # 190 s: two of the user's paths
+    "test_propose_loop.py",  # 273 s: two experiment loops through the CLI on the reference rig
+    "test_recovery.py",  # 203 s
+    "test_diagnose.py",  # 347 s
+    "test_real_slider.py",  # 79 s
+    "test_refsim.py",  # 138 s
+    "test_robust.py",  # 82 s
+    "test_belt_model.py",  # 43 s
+    "test_paper000.py",  # 41 s
+    "test_archive.py",  # 127 s: Dask clusters
+    "test_diagnose_multi.py",  # 66 s
+    "test_propose.py",  # 25 s
     # in real time
-    "test_demo_loop.py",  # 75 s: two runs through the daemon, diagnoses, a proposal
-    "test_campaign.py",  # 38 s
-    "test_daemon_e2e.py",  # 37 s
-    "test_soak.py",  # 46 s: a half-minute soak
-    "test_web.py",  # 28 s
-    "test_reliability_web.py",  # 24 s
-    "test_reliability_daemon.py",  # 12 s
-    "test_crash_recovery.py",  # 11 s
+    "test_demo_loop.py",  # 276 s: two runs through the daemon, diagnoses, a proposal
+    "test_campaign.py",  # 82 s
+    "test_daemon_e2e.py",  # 125 s
+    "test_soak.py",  # 63 s: a half-minute soak
+    "test_web.py",  # 105 s
+    "test_reliability_web.py",  # 33 s
+    "test_reliability_daemon.py",  # 42 s
+    "test_crash_recovery.py",  # 44 s
 )
 
 
