@@ -44,7 +44,7 @@ from .candidates import Candidate, candidates_for
 from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
-from .session import Fitted, Session
+from .session import Fitted, Portable, Session, portable
 from .spec import STRENGTH_START, Model, form_key
 
 NOTHING = "nothing more"
@@ -176,45 +176,87 @@ def _unseen(session: Session, model: Model, base: Fitted, say: Callable[[str], N
     (:func:`_rules_out`). One the record tells apart is reached once more in steps from 1/4 of that strength
     (CONTINUATION, :func:`_held_at`), and held at the largest step the record cannot tell, if any; the walk stops at
     the first step the record tells (since 2026-11-28: the steps above it, each reached from a told one, were told on
-    every record seen, and cost a fit each, 19 s of the 64 s this took on a 10 s brake record). An effect the
-    record rules out at all of them is absent as far as any run can tell at those strengths; one it cannot is
+    every record seen, and cost a fit each, 19 s of the 64 s this took on a 10 s brake record; one told at the first
+    step is said at it, the smallest strength ruled out). An effect the record rules out at all of them is absent as far as any run can tell at those strengths; one it cannot is
     what another run must look for. At most MAX_RIVALS, those the record comes closest to telling first (the
     largest error ratio still untold). Why that order, a heuristic: an effect that leaves no trace at all at its
     strength (ratio 1.000: a temperature law on a record whose temperature hardly moves) is the least likely to
     show on another run of the same family; one that moves the error by 8 % without being told (aging on a slider
     at one speed, seen: 1.078) is one a run that changes its conditions can reveal. Before 2026-11-27 the least
-    visible came first, by z, and the slider's aging was the fourth of four, left out."""
+    visible came first, by z, and the slider's aging was the fourth of four, left out. The effects' walks are
+    independent of each other: with cores to spare each runs in a forked worker (forked.py), said in order."""
     hw = session.win.select(True)
-    standing: list[tuple[float, Rival]] = []
-    for c in candidates_for(model, mechanics=False):
-        start = STRENGTH_START.get(form_key(c.name, c.form))
-        m = c.apply(model, "propose")
-        full = c.strength(m)
-        if start is None or full is None:
-            continue
-        value, fitted = start, _held_at(session, m, base, full, start)
-        z, seen = _rules_out(session, fitted, base, hw)
-        if seen:  # once more reached in steps (see _held_at); the largest step the record cannot tell stands
-            neutral = m.params()[full].value
-            walked, untold = base, None
-            for step in [neutral + (start - neutral) / 2 ** k for k in range(CONTINUATION, -1, -1)]:
-                walked = _held_at(session, m, walked, full, step)
-                z_step, seen_step = _rules_out(session, walked, base, hw)
-                say(f"  {c.label} reached in steps, at {step:.3g}: {walked.rms(session.primary):.4g} (z {z_step:.2f})")
-                if not seen_step:
-                    untold = (step, walked, z_step)
-                    continue
-                if step == start and walked.fit.cost < fitted.fit.cost:
-                    fitted, z = walked, z_step
-                break  # told at this step: a stronger effect, reached from it, is told the more (no fit spent on it)
-            if untold is not None:
-                (value, fitted, z), seen = untold, False
-        say(f"{c.label} at {value:.3g}: {fitted.rms(session.primary):.4g} on the record against "
-            f"{base.rms(session.primary):.4g} (z {z:.2f}: {'rules it out' if seen else 'cannot tell it'})")
-        if not seen:
-            standing.append((fitted.rms(session.primary) / base.rms(session.primary), Rival(c.label, fitted, full)))
+    cands = [c for c in candidates_for(model, mechanics=False)
+             if STRENGTH_START.get(form_key(c.name, c.form)) is not None and c.strength(c.apply(model, "propose"))]
+    work = partial(_walk_task, session, model, base, hw, cands)
+    if len(cands) > 1 and forked.can_fork():  # each effect's walk is independent of the others': one per worker
+        with forked.pool(min(len(cands), os.cpu_count() or 1), work) as pool:
+            walks = _told(pool.imap(forked.run, range(len(cands))), say)
+    else:
+        walks = _told(map(work, range(len(cands))), say)
+    standing = [(w.ratio, Rival(w.label, session.restore(w.fit), w.full)) for w in walks if w.fit is not None]
     standing.sort(key=lambda er: -er[0])
     return [Rival(NOTHING, base)] + [r for _, r in standing[:MAX_RIVALS]]
+
+
+@dataclass
+class _Walked:
+    """One effect's walk (:func:`_walk`) as plain parts a forked worker sends back: what it said, and where the
+    record cannot tell the effect from "nothing more", the fit that stands (``fit``) and its error ratio."""
+
+    label: str
+    lines: list[str]
+    full: str = ""
+    ratio: float = 0.0
+    fit: Portable | None = None
+
+
+def _told(walks, say: Callable[[str], None]) -> list[_Walked]:
+    """Say each walk's lines as it comes back (in the candidates' order)."""
+    out = []
+    for w in walks:
+        for line in w.lines:
+            say(line)
+        out.append(w)
+    return out
+
+
+def _walk_task(session: Session, model: Model, base: Fitted, hw: np.ndarray, cands: list[Candidate],
+               i: int) -> _Walked:
+    return _walk(session, model, base, hw, cands[i])
+
+
+def _walk(session: Session, model: Model, base: Fitted, hw: np.ndarray, c: Candidate) -> _Walked:
+    """The candidate ``c`` held at its generic strength, and where the record tells it, reached in steps (see
+    :func:`_unseen`)."""
+    start = STRENGTH_START[form_key(c.name, c.form)]
+    m = c.apply(model, "propose")
+    full = c.strength(m)
+    lines: list[str] = []
+    value, fitted = start, _held_at(session, m, base, full, start)
+    z, seen = _rules_out(session, fitted, base, hw)
+    if seen:  # once more reached in steps (see _held_at); the largest step the record cannot tell stands
+        neutral = m.params()[full].value
+        walked, untold = base, None
+        for step in [neutral + (start - neutral) / 2 ** k for k in range(CONTINUATION, -1, -1)]:
+            walked = _held_at(session, m, walked, full, step)
+            z_step, seen_step = _rules_out(session, walked, base, hw)
+            lines.append(f"  {c.label} reached in steps, at {step:.3g}: {walked.rms(session.primary):.4g} "
+                         f"(z {z_step:.2f})")
+            if not seen_step:
+                untold = (step, walked, z_step)
+                continue
+            if untold is None:  # told at the first step: said at the smallest strength the record rules out
+                value, fitted, z = step, walked, z_step
+            break  # told at this step: a stronger effect, reached from it, is told the more (no fit spent on it)
+        if untold is not None:
+            (value, fitted, z), seen = untold, False
+    e0 = base.rms(session.primary)
+    lines.append(f"{c.label} at {value:.3g}: {fitted.rms(session.primary):.4g} on the record against {e0:.4g} "
+                 f"(z {z:.2f}: {'rules it out' if seen else 'cannot tell it'})")
+    if seen:
+        return _Walked(c.label, lines)
+    return _Walked(c.label, lines, full, fitted.rms(session.primary) / e0, portable(fitted))
 
 
 def _held_at(session: Session, m: Model, warm: Fitted, full: str, value: float) -> Fitted:
