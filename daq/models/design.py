@@ -177,23 +177,28 @@ def _unseen(session: Session, model: Model, base: Fitted, say: Callable[[str], N
     (CONTINUATION, :func:`_held_at`), and held at the largest step the record cannot tell, if any; the walk stops at
     the first step the record tells (since 2026-11-28: the steps above it, each reached from a told one, were told on
     every record seen, and cost a fit each, 19 s of the 64 s this took on a 10 s brake record; one told at the first
-    step is said at it, the smallest strength ruled out). An effect the record rules out at all of them is absent as far as any run can tell at those strengths; one it cannot is
-    what another run must look for. At most MAX_RIVALS, those the record comes closest to telling first (the
-    largest error ratio still untold). Why that order, a heuristic: an effect that leaves no trace at all at its
-    strength (ratio 1.000: a temperature law on a record whose temperature hardly moves) is the least likely to
-    show on another run of the same family; one that moves the error by 8 % without being told (aging on a slider
-    at one speed, seen: 1.078) is one a run that changes its conditions can reveal. Before 2026-11-27 the least
-    visible came first, by z, and the slider's aging was the fourth of four, left out. The effects' walks are
-    independent of each other: with cores to spare each runs in a forked worker (forked.py), said in order."""
+    step is said at it, the smallest strength ruled out). An effect the record rules out at all of them is absent
+    as far as any run can tell at those strengths; one it cannot is what another run must look for. At most
+    MAX_RIVALS, those the record comes closest to telling first (the largest error ratio still untold). Why that
+    order, a heuristic: an effect that leaves no trace at all at its strength (ratio 1.000: a temperature law on a
+    record whose temperature hardly moves) is the least likely to show on another run of the same family; one that
+    moves the error by 8 % without being told (aging on a slider at one speed, seen: 1.078) is one a run that
+    changes its conditions can reveal. Before 2026-11-27 the least visible came first, by z, and the slider's aging
+    was the fourth of four, left out. The effects' walks are independent of each other: with cores to spare each
+    runs in a forked worker (forked.py), said in order."""
     hw = session.win.select(True)
-    cands = [c for c in candidates_for(model, mechanics=False)
-             if STRENGTH_START.get(form_key(c.name, c.form)) is not None and c.strength(c.apply(model, "propose"))]
-    work = partial(_walk_task, session, model, base, hw, cands)
-    if len(cands) > 1 and forked.can_fork():  # each effect's walk is independent of the others': one per worker
-        with forked.pool(min(len(cands), os.cpu_count() or 1), work) as pool:
-            walks = _told(pool.imap(forked.run, range(len(cands))), say)
+    held = []  # (candidate, the model with it, its strength parameter) for the effects with a generic strength
+    for c in candidates_for(model, mechanics=False):
+        m = c.apply(model, "propose")
+        full = c.strength(m)
+        if STRENGTH_START.get(form_key(c.name, c.form)) is not None and full is not None:
+            held.append((c, m, full))
+    work = partial(_walk, session, base, hw, held)
+    if len(held) > 1 and forked.can_fork():  # each effect's walk is independent of the others': one per worker
+        with forked.pool(min(len(held), os.cpu_count() or 1), work) as pool:
+            walks = _told(pool.imap(forked.run, range(len(held))), say)
     else:
-        walks = _told(map(work, range(len(cands))), say)
+        walks = _told(map(work, range(len(held))), say)
     standing = [(w.ratio, Rival(w.label, session.restore(w.fit), w.full)) for w in walks if w.fit is not None]
     standing.sort(key=lambda er: -er[0])
     return [Rival(NOTHING, base)] + [r for _, r in standing[:MAX_RIVALS]]
@@ -221,17 +226,13 @@ def _told(walks, say: Callable[[str], None]) -> list[_Walked]:
     return out
 
 
-def _walk_task(session: Session, model: Model, base: Fitted, hw: np.ndarray, cands: list[Candidate],
-               i: int) -> _Walked:
-    return _walk(session, model, base, hw, cands[i])
-
-
-def _walk(session: Session, model: Model, base: Fitted, hw: np.ndarray, c: Candidate) -> _Walked:
-    """The candidate ``c`` held at its generic strength, and where the record tells it, reached in steps (see
-    :func:`_unseen`)."""
+def _walk(session: Session, base: Fitted, hw: np.ndarray, held: list[tuple[Candidate, Model, str]],
+          i: int) -> _Walked:
+    """The ``i``-th of ``held`` (a candidate, the model with it, its strength parameter) held at its generic
+    strength, and where the record tells it, reached in steps (see :func:`_unseen`). By index: a forked worker
+    inherits ``held``."""
+    c, m, full = held[i]
     start = STRENGTH_START[form_key(c.name, c.form)]
-    m = c.apply(model, "propose")
-    full = c.strength(m)
     lines: list[str] = []
     value, fitted = start, _held_at(session, m, base, full, start)
     z, seen = _rules_out(session, fitted, base, hw)

@@ -351,7 +351,7 @@ def proposal_figure(session: Session, prop, path: Path) -> None:
     for r in prop.rivals:
         rec = recs[r.label]
         y = np.asarray(rec.channels[primary], dtype=float)
-        held = f" (held at {r.fitted.values[r.fixed]:.3g})" if r.fixed else ""  # the generic strength or a step below it
+        held = f" (held at {r.fitted.values[r.fixed]:.3g})" if r.fixed else ""  # generic, or a step below it
         ax_y.plot(rec.t, y, lw=0.8, label=r.label + held)
         if r is not prop.rivals[0]:
             ax_d.plot(rec.t, (y - np.asarray(ref.channels[primary], dtype=float)) / sigma, lw=0.8, label=r.label)
