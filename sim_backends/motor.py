@@ -170,8 +170,15 @@ class SimMotorRegulator:
             self.state = "DISABLED"
 
     def serve_once(self, timeout: float = 0.01) -> None:
-        data = self.port.read(timeout)
+        """Answer what the host wrote, then check the watchdog.
+
+        The time is taken before the read: everything written before ``now`` is returned by this read,
+        so a silence measured up to ``now`` is one the host made. Taken after it (as it was), a loop
+        descheduled between an empty read and the clock counted its own stall as the host's silence,
+        and tripped with a heartbeat waiting unread in the pty (a CI run under full load, stop 45).
+        """
         now = time.monotonic()
+        data = self.port.read(timeout)
         for line in self._lines.feed(data):
             try:
                 body = decode(line)

@@ -121,6 +121,42 @@ def test_watchdog_brings_belt_to_rest_when_heartbeats_stop(bench):
     assert wait_for(lambda: rig.belt_speed > 0.049, timeout=2.0)
 
 
+class _StallingPort(PtyPort):
+    """A real pty whose reader is descheduled once, right after a read that found nothing (a loaded CI machine)."""
+
+    stall_s = 0.0
+
+    def read(self, timeout: float = 0.05, n: int = 4096) -> bytes:
+        data = super().read(timeout, n)
+        if not data and self.stall_s:
+            stall, self.stall_s = self.stall_s, 0.0
+            time.sleep(stall)  # the heartbeats the host writes meanwhile wait in the pty
+        return data
+
+
+def test_a_regulator_descheduled_after_an_empty_read_does_not_count_its_own_stall_as_silence(tmp_path):
+    rig = RealtimeRig(load_rig("brake-2dof"))
+    rig.start()
+    port = _StallingPort(tmp_path / "rn12")
+    sim = SimMotorRegulator(rig, port).start()
+    drv = SerialMotorRegulator(MotorCfg(url=str(tmp_path / "rn12"), watchdog_ms=300, heartbeat_s=0.05))
+    try:
+        drv.open()
+        drv.enable()
+        drv.set_speed(0.1)
+        commands = sim.commands
+        port.stall_s = 0.6  # twice the watchdog, while the host keeps beating every 50 ms
+        assert wait_for(lambda: port.stall_s == 0.0, timeout=2.0)
+        assert wait_for(lambda: sim.commands > commands + 5, timeout=2.0)  # the waiting beats were read
+        assert sim.state == "RUNNING" and sim.watchdog_trips == 0
+        drv.set_speed(0.05)  # and motion is still allowed
+    finally:
+        drv.close()
+        sim.stop()
+        port.close()
+        rig.stop()
+
+
 def test_estop_is_faster_than_stop_and_latched(bench):
     rig, port, sim, drv = bench
     drv.enable()
