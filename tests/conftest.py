@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import getpass
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -79,16 +80,28 @@ def pytest_sessionstart(session):
                     f"unset ${ENV}, or run with --basetemp in a folder without one above it", returncode=4)
 
 
+def _cpu_s() -> tuple[float, float]:
+    """CPU seconds (user + system) of this process, and of its children reaped so far."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime, kids.ru_utime + kids.ru_stime
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    """With DAQ_TEST_TIMELINE=FILE, each test's worker, start and end (wall clock) are appended to FILE: how the two
-    workers filled the suite's time, to re-order RUN_FIRST by (tests/timeline.py reads it)."""
-    t0 = time.time()
+    """With DAQ_TEST_TIMELINE=FILE, each test's worker, start and end (wall clock), and the CPU it cost are appended
+    to FILE: how the two workers filled the suite's time, to re-order RUN_FIRST by, and where the CPU went, to cut
+    (tests/timeline.py reads it). Why CPU too: the suite is compute-bound (its wall time is about half its CPU on two
+    cores), so a test's wall time beside another says little about what it costs. The CPU is the worker's own and
+    its reaped children's (a forked pool's, a CLI subprocess's, a daemon's with what it reaped), counted in the test
+    that reaps them."""
+    t0, (self0, kids0) = time.time(), _cpu_s()
     yield
     path = os.environ.get("DAQ_TEST_TIMELINE")
     if path:
+        self1, kids1 = _cpu_s()
         with open(path, "a", encoding="utf-8") as f:
-            f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')}\t{t0:.3f}\t{time.time():.3f}\t{item.nodeid}\n")
+            f.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')}\t{t0:.3f}\t{time.time():.3f}\t{item.nodeid}"
+                    f"\t{self1 - self0:.2f}\t{kids1 - kids0:.2f}\n")
 
 
 @pytest.fixture(scope="session")
