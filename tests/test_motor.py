@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import pytest
@@ -51,20 +52,29 @@ def test_line_buffer_splits_and_bounds_garbage():
 # --------------------------------------------------------------------------- end to end
 
 
-@pytest.fixture()
-def bench(tmp_path):
-    """A brake rig running in real time, its regulator on a pty, and the driver on the pty's path."""
+@contextlib.contextmanager
+def running_bench(tmp_path, port_type: type[PtyPort] = PtyPort):
+    """A brake rig running in real time, its regulator on a pty (of ``port_type``), and the driver on the pty's path,
+    opened: (rig, port, regulator, driver)."""
     rig = RealtimeRig(load_rig("brake-2dof"))
     rig.start()
-    port = PtyPort(tmp_path / "rn12")
+    port = port_type(tmp_path / "rn12")
     sim = SimMotorRegulator(rig, port).start()
     drv = SerialMotorRegulator(MotorCfg(url=str(tmp_path / "rn12"), watchdog_ms=300, heartbeat_s=0.05))
-    drv.open()
-    yield rig, port, sim, drv
-    drv.close()
-    sim.stop()
-    port.close()
-    rig.stop()
+    try:
+        drv.open()
+        yield rig, port, sim, drv
+    finally:
+        drv.close()
+        sim.stop()
+        port.close()
+        rig.stop()
+
+
+@pytest.fixture()
+def bench(tmp_path):
+    with running_bench(tmp_path) as parts:
+        yield parts
 
 
 def test_commands_drive_the_simulated_belt(bench):
@@ -135,13 +145,7 @@ class _StallingPort(PtyPort):
 
 
 def test_a_regulator_descheduled_after_an_empty_read_does_not_count_its_own_stall_as_silence(tmp_path):
-    rig = RealtimeRig(load_rig("brake-2dof"))
-    rig.start()
-    port = _StallingPort(tmp_path / "rn12")
-    sim = SimMotorRegulator(rig, port).start()
-    drv = SerialMotorRegulator(MotorCfg(url=str(tmp_path / "rn12"), watchdog_ms=300, heartbeat_s=0.05))
-    try:
-        drv.open()
+    with running_bench(tmp_path, _StallingPort) as (rig, port, sim, drv):
         drv.enable()
         drv.set_speed(0.1)
         commands = sim.commands
@@ -150,11 +154,6 @@ def test_a_regulator_descheduled_after_an_empty_read_does_not_count_its_own_stal
         assert wait_for(lambda: sim.commands > commands + 5, timeout=2.0)  # the waiting beats were read
         assert sim.state == "RUNNING" and sim.watchdog_trips == 0
         drv.set_speed(0.05)  # and motion is still allowed
-    finally:
-        drv.close()
-        sim.stop()
-        port.close()
-        rig.stop()
 
 
 def test_estop_is_faster_than_stop_and_latched(bench):

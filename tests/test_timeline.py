@@ -18,7 +18,8 @@ def test_a_workers_consecutive_tests_of_a_file_are_one_span():
 def test_the_cpu_is_summed_by_file_and_compared_with_a_baseline_line_by_line():
     """A test's CPU is its worker's own plus its reaped children's; lines from before the CPU columns count nothing;
     against a baseline each file and the total carry their ratio."""
-    now = ["gw0\t100.0\t101.0\ttests/test_a.py::t1\t2.00\t1.00\n", "gw1\t100.5\t103.0\ttests/test_b.py::t1\t0.50\t0.00\n",
+    now = ["gw0\t100.0\t101.0\ttests/test_a.py::t1\t2.00\t1.00\n",
+           "gw1\t100.5\t103.0\ttests/test_b.py::t1\t0.50\t0.00\n",
            "gw0\t101.0\t104.0\ttests/test_a.py::t2[x]\t1.00\t0.00\n", "gw0\t104.0\t105.0\ttests/test_c.py::t1\n"]
     before = ["gw0\t0.0\t1.0\ttests/test_a.py::t1\t4.00\t4.00\n", "gw1\t0.0\t1.0\ttests/test_b.py::t1\t0.25\t0.25\n"]
     assert cpu_by_file(now) == {"test_a.py": 4.0, "test_b.py": 0.5}
