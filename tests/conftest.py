@@ -65,6 +65,27 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank) + (item.path.name not in with_slow)))
 
 
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """The machine's speed beside the suite's time, at the end of the run: the compiled brake seed run (`daq bench
+    sim`'s kernel, 45 s at 1 kHz), best of three. Why: the suite is compute-bound, so its wall time is the machine's as
+    much as the code's: 632 s on 2026-11-27 before the machine changed (`daq bench diagnose`'s same-run baseline, one
+    forward simulation, took 0.40 s there the day before), 1330 s after (that baseline 0.85 s, this kernel 36-49 ms).
+    A suite time read without it compares machines, not changes. Said by the process that reports (xdist's
+    controller), not by the workers."""
+    if hasattr(config, "workerinput"):
+        return
+    try:
+        from daq.bench.sim import SEED_DURATION, run_kernel
+
+        run_kernel(1.0)  # compile or load the cache
+        best = min(run_kernel()[0] for _ in range(3))
+    except Exception as exc:  # noqa: BLE001 - a broken kernel is the tests' to report; the summary must still print
+        terminalreporter.write_line(f"machine speed: not measured ({type(exc).__name__}: {exc})")
+        return
+    terminalreporter.write_line(f"machine speed: the brake seed run ({SEED_DURATION:g} s at 1 kHz, compiled) in "
+                                f"{best * 1e3:.1f} ms, best of 3 (`daq bench sim`)")
+
+
 def pytest_sessionstart(session):
     """Refuse to run, in one line, when an archive catalog would claim the tests' temporary files. A recording finds
     its catalog in its folder or any parent (daq.io.archive.find_catalog, or $DAQ_ARCHIVE), so a catalog left in
