@@ -88,6 +88,11 @@ WARM_S = 3.0  # seconds of a simulated record the numba warm-up fits
 # The environment is Dask's own default, chosen here on purpose rather than inherited: one BLAS/OpenMP thread a worker
 # (Dask is the parallelism: a worker a core, no oversubscription) and glibc returning freed memory early (the
 # nanny's memory limits read the process's RSS). The bench runs the serial path under the same environment.
+# Without a dashboard the scheduler still serves its health routes over HTTP, on 8787 unless told: a second job on the
+# machine (or the suite's other worker) found it taken and Dask warned "Port 8787 is already in use" before moving to
+# a random port. Told a free loopback port, the routes stay off the network and two jobs never meet (the dashboard
+# stays off: LocalCluster passes dashboard=False with dashboard_address=None, and these options come after).
+SCHEDULER_HTTP = {"dashboard_address": "127.0.0.1:0"}
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
               "MALLOC_TRIM_THRESHOLD_": "65536"}
 WORKER_CONFIG = {
@@ -354,7 +359,7 @@ def _connect(scheduler: str | None, workers: int | None) -> tuple[Client, LocalC
     _CALLERS_ENVIRON.update({k: os.environ.get(k) for k in _ENV_KEYS})
     try:  # under LOCAL_CONFIG (engine holds it for the cluster's life: a restarted worker starts as the first did)
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               scheduler_kwargs=SCHEDULER_HTTP, silence_logs=logging.ERROR)
     finally:
         _put_back(_CALLERS_ENVIRON)
     return Client(cluster), cluster, f"LocalCluster ({n} worker{'s' if n > 1 else ''})"
