@@ -29,7 +29,7 @@ from typing import Annotated, Any, ClassVar, Literal, Self, Union
 import tomli_w
 from pydantic import Field, ValidationError, model_validator
 
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 
 from .errors import DaqError, InputError, parse_toml, read_text
 from .strict import Strict  # re-exported: models elsewhere import it from here

@@ -14,6 +14,7 @@ docs/decisions/0037-no-circles-inside-a-package.md.
 from __future__ import annotations
 
 import ast
+import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -224,9 +225,13 @@ def test_the_circle_detector_finds_a_circle(tmp_path: Path):
     assert import_circles(graph) == [["pkg.a", "pkg.b", "pkg.c"], ["pkg.d", "pkg.sub.m"]]
 
 
-# packages whose own __init__ imports these on purpose: daq.physics sets numba's cache directory (decision 1)
+# packages whose own __init__ imports these on purpose (none since the numba cache directory is set through the
+# environment, 2026-11-28: daq.physics imported numba to set it)
 HEAVY = ("numba", "scipy", "numpy", "h5py", "zmq", "pandas", "matplotlib", "pydantic", "starlette", "uvicorn")
-HEAVY_ON_PURPOSE = {"daq.physics": {"numba", "numpy", "scipy"}}
+HEAVY_ON_PURPOSE: dict[str, set[str]] = {}
+# the entry points of the processes that simulate nothing: a daemon, a recorder, the web page's process, and what
+# every command reads first (a config)
+NO_COMPILER = ("daq.config", "daq.daemon.service", "daq.streaming.recorder", "daq.web.process")
 
 
 def _packages() -> list[str]:
@@ -290,3 +295,27 @@ def test_importing_a_package_imports_none_of_its_exports():
         if heavy:
             bad.append(f"import {name} imports {sorted(heavy)}")
     assert not bad, "\n".join(bad)
+
+
+def test_the_processes_that_simulate_nothing_import_no_compiler():
+    """A config names its effects, so each process that reads one imports the catalog; those that never simulate
+    must not pay for numba or scipy on the way (0.4-0.5 s of CPU each on a 2-core machine, measured with ``python -X
+    importtime``: the catalog sat beside the compiled terms and daq.physics imported numba to set its cache). Every
+    daemon, recorder and web process of the suite paid it. And a process that compiles still finds this tree's
+    cache: the directory set before numba was imported."""
+    import json
+    import subprocess
+    import sys
+
+    import daq.physics
+
+    for name in NO_COMPILER:
+        code = f"import json, sys; import {name}; print(json.dumps(sorted(sys.modules)))"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+        loaded = set(json.loads(out.stdout))
+        heavy = {"numba", "scipy", "matplotlib"} & loaded
+        assert not heavy, f"import {name} imports {sorted(heavy)}"
+    code = "import daq.physics.brake2dof, numba; print(numba.config.CACHE_DIR)"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True, env=env)
+    assert out.stdout.strip() == str(daq.physics._cache_dir())

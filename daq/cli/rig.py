@@ -37,7 +37,7 @@ def rig_summary(rig: str) -> dict:
     """Parameters, channels, effects and linearised eigenfrequencies of a rig (its seed configuration)."""
     # heavy: the compiled physics
     from daq.config import load_rig
-    from daq.physics.effects import CATALOG
+    from daq.physics.catalog import CATALOG
     from daq.sim.effectset import effect_vector
     from daq.sim.rigs import make_sim
 

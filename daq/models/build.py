@@ -13,7 +13,7 @@ import numpy as np
 
 from daq.config import RigConfig
 from daq.errors import InputError
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 from daq.sim.effectset import environment_vector
 from daq.sim.rigs import SimRig, make_sim
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 
 from .spec import Model, Param, add_effect, effect_label, rig_config_for, strength_key
 

@@ -28,7 +28,7 @@ from itertools import combinations
 import numpy as np
 from scipy import stats
 
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 
 from .candidates import Candidate, add_command, candidates_for
 from .compare import RINGS_OFF, where_it_lives

@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from daq.config import RigConfig, load_rig, user_rig_file
 from daq.errors import InputError, parse_toml, read_text
 from daq.io.files import atomic_path
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 from daq.strict import Closed
 
 from .user_effects import load_user_effect

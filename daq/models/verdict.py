@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from daq.physics.effects import CATALOG
+from daq.physics.catalog import CATALOG
 
 from .candidates import Candidate, add_command
 from .extensions import fit_extensions, keep_fits

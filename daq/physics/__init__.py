@@ -7,12 +7,14 @@ keyed by a hash of all compiled sources: any edit gets a fresh cache.
 Decision record: docs/decisions/0001-physics-in-one-place.md.
 
 Exports (``__all__``) the rigs' modules, ``friction`` and the effect catalogue, each imported when first used.
+Importing the package imports no numba (see below).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 from daq import lazy_exports
@@ -27,10 +29,14 @@ def _cache_dir() -> Path:
 
 
 if "NUMBA_CACHE_DIR" not in os.environ:
-    import numba
-
-    numba.config.CACHE_DIR = str(_cache_dir())
+    # numba reads NUMBA_CACHE_DIR when it is first imported: set here, numba is imported only by a process that
+    # compiles (a config's reader needs the catalog alone, daq.physics.catalog); one that imported numba already
+    # is told directly. Either way the cache is this source tree's.
+    if "numba" in sys.modules:
+        sys.modules["numba"].config.CACHE_DIR = str(_cache_dir())
+    else:
+        os.environ["NUMBA_CACHE_DIR"] = str(_cache_dir())
 
 __getattr__, __dir__, __all__ = lazy_exports(
-    __name__, {"effects": ["CATALOG", "E"]}, modules=["beltndof", "brake2dof", "drum", "friction"]
+    __name__, {"catalog": ["CATALOG", "E"]}, modules=["beltndof", "brake2dof", "drum", "friction"]
 )
