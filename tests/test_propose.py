@@ -77,9 +77,18 @@ def test_a_rival_equal_to_the_truth_is_never_separated_and_the_truth_sits_at_its
         # the truth on its own predicted record: mean square error at the record's noise level (start values fitted)
         p = Session(rec, "(predicted)", s.cfg, max_windows=design.MAX_WINDOWS, window_s=(s.win.length - 1) / s.m.rate)
         p.m.sigma = dict(s.m.sigma)
-        _, ms = p.held_out(p.problem(model), nothing.fitted.values)
+        cold, ms = p.held_out(p.problem(model), nothing.fitted.values)
         per_sigma2 = np.mean(p.weighted(ms, p.win.select(True))) / len(ms)
         assert 0.5 < per_sigma2 < 1.5, per_sigma2
+        # scored, the start fits begin at the states the truth's own simulation passed through (not the data's
+        # estimate): the same optimum (the CPU it saves over a family: `daq bench propose`)
+        truth = design._TruthRecord(s, nothing, rec)
+        assert truth.near is not None and truth.near.shape == cold.start_values.shape
+        warm, ms_warm = p.held_out(p.problem(model), nothing.fitted.values, near=truth.near, damping=truth.damping)
+        hw = p.win.select(True)
+        np.testing.assert_allclose(p.weighted(ms_warm, hw), p.weighted(ms, hw), rtol=1e-3)
+        np.testing.assert_allclose(p.weighted(truth.ms, hw), p.weighted(ms, hw), rtol=1e-3)
+        assert warm.success and abs(warm.cost - cold.cost) <= 1e-4 * cold.cost, (warm.cost, cold.cost)
 
 
 def test_bad_proposals_are_one_line(record, capsys):

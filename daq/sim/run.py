@@ -35,8 +35,9 @@ def default_ramp(cfg: RigConfig, duration: float) -> tuple[np.ndarray, np.ndarra
 def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[np.ndarray, np.ndarray] | None = None,
              ramp_source: str = "ramp", duration: float | None = None, rate: float | None = None,
              seed: int = 0, dt: float | None = None, noise: bool = True, e: np.ndarray | None = None,
-             progress: Callable[[float, float], None] | None = None) -> Recording:
-    """Simulate ``duration`` seconds of a rig; ``e`` overrides the effect vector entirely if given."""
+             progress: Callable[[float, float], None] | None = None, keep_states: bool = False) -> Recording:
+    """Simulate ``duration`` seconds of a rig; ``e`` overrides the effect vector entirely if given; with
+    ``keep_states`` the simulator's whole state at each sample is in ``truth["state"]`` (n_samples, n_state)."""
     duration = float(duration if duration is not None else cfg.drive.default_duration_s)
     if not duration > 0:
         raise InputError("--duration", "duration", "must be > 0")
@@ -67,6 +68,8 @@ def simulate(cfg: RigConfig, *, effects: list[EffectRequest] = (), ramp: tuple[n
     channels, units = _measure_channels(cfg, t, true_ch, seed, noise)
     truth = sim.truth(chunk)
     truth.update({f"true_{k}": v for k, v in true_ch.items()})
+    if keep_states:
+        truth["state"] = chunk.states
     meta = {
         "rig": cfg.rig,
         "software": f"friction-daq {__version__}",
