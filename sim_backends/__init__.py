@@ -3,6 +3,7 @@
 - ``families.py``: the registry, family name -> simulated instrument class (keyed as drivers/families.py);
 - ``hardware.py``: ``SimulatedHardware``, a whole bench for one rig and the endpoints its drivers use;
 - ``process.py``: that bench in a process of its own (``daq daemon --sim``);
+- ``bench_client.py``: starting, asking and ending that process from another (imports no simulator);
 - ``realtime.py``: the rig's physics stepped in real time, feeding every instrument;
 - ``instrument.py``: what the simulated instruments share (device clock, sensor model, faults);
 - ``pty_port.py``: a pseudo-terminal behind a stable link, unpluggable like a USB cable;
@@ -18,7 +19,7 @@ __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
         "hardware": ["SimulatedHardware"],
-        "process": ["SimBenchProcess"],
+        "bench_client": ["SimBenchProcess"],
         "realtime": ["RealtimeRig"],
         "families": ["SIMULATORS", "simulator_class"],
     },

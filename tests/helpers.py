@@ -30,8 +30,8 @@ from daq.errors import InputError
 from daq.io.interchange import write_recording
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
-from sim_backends.process import end_bench, read_ready, stop_daemon, wait_gone  # noqa: F401 - wait_gone: the tests' too
-from sim_backends.process import request as sim_request
+from sim_backends.bench_client import end_bench, read_ready, stop_daemon, wait_gone  # noqa: F401 - tests use wait_gone
+from sim_backends.bench_client import request as sim_request
 
 ROOT = Path(__file__).resolve().parent.parent  # the repository: the working folder of every subprocess
 

@@ -29,7 +29,7 @@ from daq.analysis.campaign.supervision import _cmdline
 from daq.cli.campaign import _confirm_factory
 from daq.cli.main import main
 from daq.errors import InputError
-from sim_backends.process import pid_alive
+from sim_backends.bench_client import pid_alive
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUE = {"D": 1.5, "E": 0.09981645}

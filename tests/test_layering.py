@@ -229,9 +229,10 @@ def test_the_circle_detector_finds_a_circle(tmp_path: Path):
 # environment, 2026-11-28: daq.physics imported numba to set it)
 HEAVY = ("numba", "scipy", "numpy", "h5py", "zmq", "pandas", "matplotlib", "pydantic", "starlette", "uvicorn")
 HEAVY_ON_PURPOSE: dict[str, set[str]] = {}
-# the entry points of the processes that simulate nothing: a daemon, a recorder, the web page's process, and what
-# every command reads first (a config)
-NO_COMPILER = ("daq.config", "daq.daemon.service", "daq.streaming.recorder", "daq.web.process")
+# the entry points of the processes that simulate nothing (a daemon, with the simulated bench it starts in another
+# process, a recorder, the web page's process) and what every command reads first (a config, a model file)
+NO_COMPILER = ("daq.config", "daq.daemon.service", "daq.daemon.sim_bench", "daq.models.spec", "daq.streaming.recorder",
+               "daq.web.process")
 
 
 def _packages() -> list[str]:

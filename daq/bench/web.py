@@ -40,8 +40,8 @@ from daq.daemon.control import ControlClient
 from daq.errors import InputError
 from daq.io.stream_format import Block
 from daq.streaming.bus import Subscriber
-from sim_backends.process import read_ready
-from sim_backends.process import request as sim_request
+from sim_backends.bench_client import read_ready
+from sim_backends.bench_client import request as sim_request
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"

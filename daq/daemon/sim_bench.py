@@ -28,8 +28,8 @@ from pydantic import Field
 from daq.config import RigConfig, config_text
 from daq.streaming.child_process import pid_alive
 from daq.strict import Closed
-from sim_backends.process import SimBenchProcess, cross_process_wiring
-from sim_backends.process import request as bench_request
+from sim_backends.bench_client import SimBenchProcess, cross_process_wiring
+from sim_backends.bench_client import request as bench_request
 
 from .children import BenchFactory
 from .session_state import BenchRef, pid_runs

@@ -49,7 +49,7 @@ from daq.io.png import save_png  # sets the Agg backend (before any figure exist
 from daq.io.stream_format import Block
 from daq.streaming.bus import Subscriber
 from daq.strict import Strict
-from sim_backends.process import end_bench, read_ready, stop_daemon
+from sim_backends.bench_client import end_bench, read_ready, stop_daemon
 
 from .control import ControlClient
 

@@ -32,7 +32,6 @@ from daq.io.files import atomic_path
 from daq.physics.catalog import CATALOG
 from daq.strict import Closed
 
-from .user_effects import load_user_effect
 
 SECTIONS = ("friction", "mechanics")
 
@@ -382,6 +381,9 @@ def add_effect(model: Model, name: str, source: str = "model add", path: str | N
         raise InputError(source, name, "the model already has this effect")
     m = model.model_copy(deep=True)
     if path is not None:
+        # here, not at the top: loading a user's term compiles it (numba, scipy through the rigs), 1.6 s of CPU that
+        # every `daq model init` and every model file read paid (python -X importtime, 2026-11-28)
+        from .user_effects import load_user_effect
 
         ue = load_user_effect(path)
         m.effects[name] = Effect(path=str(path), params={k: Param(value=p.start, free=True, lo=p.lo, hi=p.hi)

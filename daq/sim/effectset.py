@@ -8,7 +8,7 @@ import numpy as np
 
 from daq.config import RigConfig
 from daq.errors import InputError
-from daq.physics.effects import CATALOG, ENVIRONMENT_SLOTS, E, neutral_vector
+from daq.physics.catalog import CATALOG, ENVIRONMENT_SLOTS, E, neutral_vector
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import zlib
 from pathlib import Path
 from typing import Callable
 
-from sim_backends.process import end_bench, pid_alive, stop_daemon, wait_gone
+from sim_backends.bench_client import end_bench, pid_alive, stop_daemon, wait_gone
 
 from .state import DaemonInfo
 
