@@ -387,11 +387,13 @@ def test_make_cli_writes_csv_and_truth_sidecar(tmp_path):
 
 @pytest.mark.slow
 def test_generation_speed_20s_at_1kHz():
-    w0 = time.perf_counter()
+    """The reference simulator keeps up with the rig it stands for: 20 s at 1 kHz in under 20 s of this process's
+    CPU (not the wall clock: beside a loaded suite, 9.5 s of CPU took 24 s of wall, 2026-11-28, and failed)."""
+    c0 = time.process_time()
     rec = make.generate("brake-2dof", [], rate=1000.0, duration=20.0, seed=1)
-    wall = time.perf_counter() - w0
+    cpu = time.process_time() - c0
     assert rec["t"].size == 20001
-    assert wall < 20.0, f"20 s at 1 kHz took {wall:.1f} s"
+    assert cpu < 20.0, f"20 s at 1 kHz took {cpu:.1f} s of CPU"
 
 
 # ---------------------------------------------------------------------------
