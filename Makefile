@@ -10,7 +10,7 @@ demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
 # two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first): 632 s on the 2-core
-# machine of 2026-11-27, 22-23 min on the one of 2026-11-28 at half its speed (the run ends with the machine's speed).
+# machine of 2026-11-27, 22-26 min on the one of 2026-11-28 at half its speed (the run ends with the machine's speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
