@@ -274,19 +274,24 @@ def test_every_package_says_what_it_exports():
     assert not bad, "\n".join(bad)
 
 
-def test_importing_a_package_imports_none_of_its_exports():
-    """``import daq.models`` alone loads the package's ``__init__`` and those above it, nothing more of ours: its
-    exports are imported when first used (PEP 562), so light processes (the web page's, ``daq --help``) still import
-    no numba, scipy or numpy. Measured before issue 30: only daq.physics imported any of HEAVY (numba, by design)."""
+def _loaded_by(name: str) -> set[str]:
+    """The modules a fresh interpreter holds after ``import name`` (from the repository)."""
     import json
     import subprocess
     import sys
 
+    code = f"import json, sys; import {name}; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+    return set(json.loads(out.stdout))
+
+
+def test_importing_a_package_imports_none_of_its_exports():
+    """``import daq.models`` alone loads the package's ``__init__`` and those above it, nothing more of ours: its
+    exports are imported when first used (PEP 562), so light processes (the web page's, ``daq --help``) still import
+    no numba, scipy or numpy. Measured before issue 30: only daq.physics imported any of HEAVY (numba, by design)."""
     bad = []
     for name in _packages():
-        code = f"import json, sys; import {name}; print(json.dumps(sorted(sys.modules)))"
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
-        loaded = set(json.loads(out.stdout))
+        loaded = _loaded_by(name)
         ours = {m for m in loaded if m.split(".")[0] in PACKAGES}
         parts = name.split(".")
         expected = {".".join(parts[: i + 1]) for i in range(len(parts))} | {"daq"}
@@ -304,17 +309,13 @@ def test_the_processes_that_simulate_nothing_import_no_compiler():
     importtime``: the catalog sat beside the compiled terms and daq.physics imported numba to set its cache). Every
     daemon, recorder and web process of the suite paid it. And a process that compiles still finds this tree's
     cache: the directory set before numba was imported."""
-    import json
     import subprocess
     import sys
 
     import daq.physics
 
     for name in NO_COMPILER:
-        code = f"import json, sys; import {name}; print(json.dumps(sorted(sys.modules)))"
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
-        loaded = set(json.loads(out.stdout))
-        heavy = {"numba", "scipy", "matplotlib"} & loaded
+        heavy = {"numba", "scipy", "matplotlib"} & _loaded_by(name)
         assert not heavy, f"import {name} imports {sorted(heavy)}"
     code = "import daq.physics.brake2dof, numba; print(numba.config.CACHE_DIR)"
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}

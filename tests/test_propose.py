@@ -84,7 +84,7 @@ def test_a_rival_equal_to_the_truth_is_never_separated_and_the_truth_sits_at_its
         # estimate): the same optimum (the CPU it saves over a family: `daq bench propose`)
         truth = design._TruthRecord(s, nothing, rec)
         assert truth.near is not None and truth.near.shape == cold.start_values.shape
-        warm, ms_warm = p.held_out(p.problem(model), nothing.fitted.values, near=truth.near, damping=truth.damping)
+        warm, ms_warm = p.held_out(p.problem(model), nothing.fitted.values, near=truth.near)
         hw = p.win.select(True)
         np.testing.assert_allclose(p.weighted(ms_warm, hw), p.weighted(ms, hw), rtol=1e-3)
         np.testing.assert_allclose(p.weighted(truth.ms, hw), p.weighted(ms, hw), rtol=1e-3)

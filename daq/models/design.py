@@ -42,7 +42,6 @@ from daq.sim.run import simulate
 from . import forked
 from .candidates import Candidate, candidates_for
 from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
-from .lm import NEAR_DAMPING, START_DAMPING
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
 from .session import Fitted, Portable, Session, portable
@@ -336,14 +335,13 @@ class _TruthRecord:
         self.hw = self.s.win.select(True)
         pr = self.s.problem(truth.fitted.model)
         self.near = self._own_states(rec, pr.slots)  # every held-out fit on this record starts here (a twin: d = 0)
-        self.damping = START_DAMPING if self.near is None else NEAR_DAMPING
-        _, self.ms = self.s.held_out(pr, truth.fitted.values, near=self.near, damping=self.damping)
+        _, self.ms = self.s.held_out(pr, truth.fitted.values, near=self.near)
 
     def _own_states(self, rec: Recording, slots: list[int]) -> np.ndarray | None:
         """The start values ``truth``'s own simulation passed through at each held-out window's start: where the
         start fits of the truth and of every rival on this record begin (the same start for all, so a rival equal
-        to the truth is never separated), with damping NEAR_DAMPING, instead of at the data's estimate with
-        START_DAMPING. Why: from the data's estimate a start fit took 45-130 batched simulations, mostly
+        to the truth is never separated), with damping lm.NEAR_DAMPING, instead of at the data's estimate with
+        lm.START_DAMPING. Why: from the data's estimate a start fit took 45-130 batched simulations, mostly
         Jacobians while the damping fell from 100. Measured on a 10 s brake record's family of 42 programmes
         (2026-11-28, beside another job): 74.7 -> 56.3 CPU-s; the same best programme, deciding the same rivals;
         of 252 pairs, 247 separations within 1 %, two within 2.1 %, three at 3.2, 4.0 and 30 % (the last at the
@@ -358,7 +356,7 @@ class _TruthRecord:
     def against(self, rival: Rival) -> PairScore:
         """``rival`` at its values against this record, on its held-out windows."""
         s = self.s
-        _, ms_r = s.held_out(s.problem(rival.fitted.model), rival.fitted.values, near=self.near, damping=self.damping)
+        _, ms_r = s.held_out(s.problem(rival.fitted.model), rival.fitted.values, near=self.near)
         d = s.weighted(ms_r, self.hw) - s.weighted(self.ms, self.hw)
         n = int(d.size)
         chi2 = float(np.sum((s.win.length - 1) * d))

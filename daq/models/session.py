@@ -27,7 +27,6 @@ from daq.signals import timing_noise
 from . import forked, robust
 from .build import Builder
 from .data import Measured, RigData, rig_data
-from .lm import START_DAMPING
 from .shooting import Problem, ShootingFit
 from .spec import STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
 from .windows import Windows, make_windows, window_weights
@@ -343,13 +342,13 @@ class Session:
             out.update({k: float(np.clip(v, *bounds[k])) for k, v in self._effect_guesses[cache].items() if k in bounds})
         return out
 
-    def held_out(self, pr: Problem, values: dict[str, float], near: np.ndarray | None = None,
-                 damping: float = START_DAMPING) -> tuple[ShootingFit, dict[str, np.ndarray]]:
+    def held_out(self, pr: Problem, values: dict[str, float],
+                 near: np.ndarray | None = None) -> tuple[ShootingFit, dict[str, np.ndarray]]:
         """A model at fixed ``values`` on the held-out windows: each window's start values fitted (parameters
-        fixed; from ``near`` with ``damping`` if given, see Problem.fit_starts), then its mean-square errors per
+        fixed; from ``near`` if given, see Problem.fit_starts), then its mean-square errors per
         output: what every held-out score is made of."""
         hw = self.win.select(True)
-        held = pr.fit_starts(values, hw, max_iter=25, near=near, damping=damping)
+        held = pr.fit_starts(values, hw, max_iter=25, near=near)
         return held, pr.window_errors(values, hw, held.start_values)
 
     def _fit_from(self, pr: Problem, starts: list, free: list[str], bounds: dict, fw: np.ndarray,

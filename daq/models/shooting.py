@@ -248,7 +248,7 @@ class Problem:
         return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
 
     def fit_starts(self, values: dict[str, float], windows: np.ndarray, max_iter: int = 10,
-                   near: np.ndarray | None = None, damping: float = lm.START_DAMPING) -> ShootingFit:
+                   near: np.ndarray | None = None) -> ShootingFit:
         """Only the start unknowns (the model fixed): how well can this model follow these windows.
 
         Why a Levenberg-Marquardt per window and not one over all of them: with the model fixed the
@@ -256,11 +256,13 @@ class Problem:
         that needs small steps (near a break-away) stall while the summed cost still falls. Each
         window here keeps its own damping and stops on its own; the simulations stay batched
         (one call per trial over the windows still iterating). Least squares first, then the problem's loss from
-        there, as Session fits the parameters (robust.py says why). From ``near`` (n_win, n_start) if given, else
-        from the data's estimate; ``damping``: the first (lm.START_DAMPING says why high from the data's).
+        there, as Session fits the parameters (robust.py says why). From the data's estimate with lm.START_DAMPING,
+        or from ``near`` (n_win, n_start: states the model itself passed through) with lm.NEAR_DAMPING.
         """
-        start = self.default_starts(windows) if near is None else near
-        first = self._fit_starts(values, windows, start, robust.SQUARES, max_iter, damping=damping)
+        if near is None:
+            first = self._fit_starts(values, windows, self.default_starts(windows), robust.SQUARES, max_iter)
+        else:
+            first = self._fit_starts(values, windows, near, robust.SQUARES, max_iter, damping=lm.NEAR_DAMPING)
         if self.loss == robust.SQUARES:
             return first
         res = self._fit_starts(values, windows, first.start_values, self.loss, max_iter, after=first)
@@ -290,7 +292,7 @@ class Problem:
         # a stage from a previous one's end starts near its optimum (small steps, low damping) and stops where no
         # window's start values would move by STAGE_SHIFT of their errors (from a damping of 100 Huber's stage took
         # 39 batched simulations a call, half of least squares' own)
-        st = lm.solve_starts(ob, lm.StartsState(V, R, cost, W, J, np.full(nw, 1e-2 if handed else float(damping)),
+        st = lm.solve_starts(ob, lm.StartsState(V, R, cost, W, J, np.full(nw, 1e-2 if handed else damping),
                                                 0.5 * STAGE_SHIFT**2 if handed else 1e-4, np.ones(nw, bool),
                                                 np.zeros(nw, int)), max_iter)
         if nw:  # summary over windows, as the joint fit reports it
