@@ -9,8 +9,9 @@ BIN := $(VENV)/bin
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
-# two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first): 632 s on the 2-core
-# machine of 2026-11-27, 22-26 min on the one of 2026-11-28 at half its speed (the run ends with the machine's speed).
+# two workers (pytest-xdist), a file each at a time in conftest.py's order: the real-time files one chain on one worker
+# beside the long computations on the other (decision 45): 698 s on a clean clone of the 2-core machine of 2026-11-28
+# (kernel 36 ms; 22-26 min on the one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
