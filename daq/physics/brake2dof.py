@@ -18,7 +18,7 @@ from scipy.linalg import eigh
 
 from . import effects
 from .contact import N_AUX, set_aux
-from .effects import N_E, TAIL, E, smooth_sign, user_mu_factor
+from .effects import N_E, TAIL, E, user_mu_factor
 from .friction import mu_brake
 from .jit import helper, kernel
 
@@ -84,7 +84,7 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
     f, mu = effects.accel_sign(f, mu, g_block, inv_m, v_rel, dvb, e)
     ax = (g_block - f) * inv_m
 
-    q_pivot = e[E.BF_TORQUE] * smooth_sign(y2 * inv_r, e[E.BF_EPS])  # Q of eq. (5b)
+    q_pivot = effects.bearing(e[E.BF_TORQUE], y2 * inv_r, e[E.BF_EPS])  # Q of eq. (5b)
     ay = (-c1 * z2 - c2 * y2 - k2 * (x1 + y1) - k3 * d3 - grav - q_pivot * inv_r) * p[P.R2_J]
 
     load_rate = (k1 + k2) * x2 + k2 * y2  # rate of the spring load the contact must hold

@@ -20,7 +20,7 @@ import numpy as np
 
 from . import effects
 from .contact import set_aux
-from .effects import TAIL, E, smooth_sign, user_mu_factor
+from .effects import TAIL, E, user_mu_factor
 from .friction import mu_drum
 from .jit import kernel
 
@@ -68,7 +68,7 @@ def rhs(t, s, p, e, rt, rv, ds, aux):
 
     z = n_inst + spring * math.sin(phi) - p[P.m] * p[P.Rc] * w * w  # bearing thrust, eq. (1) row 1
     torque = -spring * Rs * math.cos(phi) - e[E.C_PHI] * w
-    torque -= e[E.BF_MU1] * z * p[P.r0] * smooth_sign(w, e[E.BF_EPS])
+    torque -= effects.bearing(e[E.BF_MU1] * z * p[P.r0], w, e[E.BF_EPS])
     # at the contact (R phi''): every other force torque / R on the inertia I0 / R^2
     f, mu = effects.accel_sign(f, mu, torque / R, R * R / I0, v_rel, dvd, e)
     acc = (torque - f * R) / I0

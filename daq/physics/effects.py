@@ -34,6 +34,17 @@ def smooth_sign(v: float, eps: float) -> float:
 
 
 @helper
+def bearing(scale: float, v: float, eps: float) -> float:
+    """bearing-friction: ``scale`` smooth_sign(v, eps), a pivot's torque (brake-2dof) or its coefficient times load and
+    radius (drum-pendulum); 0 without the effect. Why the test: tanh of a moving body's speed went through libm's
+    expm1, 14 % of a brake diagnosis's CPU for a term that is 0 times it in every model without the effect
+    (perf, 2026-11-28; the same numbers, as 0 x tanh(v) is 0)."""
+    if scale == 0.0:
+        return 0.0
+    return scale * smooth_sign(v, eps)
+
+
+@helper
 def user_mu_factor(v_rel: float, t: float, temp: float, travel: float, stick_clock: float,
                    u0: float, u1: float, u2: float, u3: float) -> float:
     """Hook for a user effect: multiplies the friction coefficient. Built-in: 1 (no user effect).
