@@ -1,12 +1,14 @@
 """Data acquisition, simulation and friction-model analysis for dry-friction test rigs.
 
 Exports the errors every layer raises (``DaqError``, ``InputError``); the rest is in the subpackages. Here too, as
-the one piece every package imports first: ``lazy_exports``, how each package says what it exports (issue 30).
+the one piece every package imports first: ``lazy_exports``, how each package says what it exports (issue 30), and
+the one BLAS kernel every machine computes with (``pin_blas_kernel``).
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing: importing a package costs this file, no more
@@ -54,3 +56,35 @@ def lazy_exports(
 
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {"errors": ["DaqError", "InputError"]})
+
+BLAS_KERNEL = "Haswell"  # OpenBLAS's AVX2 + FMA kernels: every x86-64 CPU of the last ten years runs them
+
+
+def pin_blas_kernel(cpuinfo: str = "/proc/cpuinfo") -> str | None:
+    """Make numpy's and scipy's OpenBLAS use one kernel set (``OPENBLAS_CORETYPE`` = BLAS_KERNEL) on every x86-64
+    CPU that has AVX2 and FMA, unless the environment names one. Returns the kernel set, or None where it is left
+    to OpenBLAS (another architecture, an older CPU, numpy already loaded: OpenBLAS reads the variable as it loads).
+
+    Why: OpenBLAS picks its kernels by CPU, and kernels differ in how they round. The same code and data gave
+    another proposal on another machine: `daq bench propose` named "decelerate 0.04628 m/s over 10 s" (z 2.56,
+    separation 107.9) on the machine of 2026-11-27 and "accelerate 0.002644 -> 0.04628 m/s over 40 s" (z 3.49,
+    116.1) on an AVX-512 one the next day, and ``OPENBLAS_CORETYPE=Haswell`` on the second gave the first's result
+    exactly. A fit's normal equations go through BLAS, and a proposal or a diagnosis that rests on fits may not
+    depend on the machine (as MKL's conditional numerical reproducibility does for MKL). Set before numpy loads:
+    this package is imported before numpy by our commands, our processes and the test suite's conftest."""
+    if "OPENBLAS_CORETYPE" in os.environ:
+        return os.environ["OPENBLAS_CORETYPE"]
+    if "numpy" in sys.modules or os.uname().machine not in ("x86_64", "AMD64"):
+        return None
+    try:
+        with open(cpuinfo, encoding="ascii", errors="replace") as f:
+            flags = next((line for line in f if line.startswith("flags")), "").split()
+    except OSError:
+        return None
+    if "avx2" not in flags or "fma" not in flags:
+        return None
+    os.environ["OPENBLAS_CORETYPE"] = BLAS_KERNEL
+    return BLAS_KERNEL
+
+
+pin_blas_kernel()

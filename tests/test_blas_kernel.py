@@ -1,0 +1,66 @@
+"""One BLAS kernel set on every machine (daq.pin_blas_kernel): OpenBLAS picks kernels by CPU and they round
+differently, and the same proposal came out differently on two machines until both used the same set."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import daq
+
+# the kernel set numpy's and scipy's OpenBLAS loaded in a fresh interpreter, with or without importing daq first
+CORENAMES = """
+import ctypes, glob, os, sys
+if sys.argv[1] == 'daq':
+    import daq
+import numpy, scipy.linalg
+def name(package, lib, symbol):
+    path = glob.glob(os.path.join(os.path.dirname(package.__file__) + '.libs', lib))[0]
+    fn = getattr(ctypes.CDLL(path), symbol)
+    fn.restype = ctypes.c_char_p
+    return fn().decode()
+print(name(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_corename64_'),
+      name(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_corename'))
+"""
+
+
+def corenames(first: str, **env: str) -> list[str]:
+    clean = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"} | env
+    r = subprocess.run([sys.executable, "-c", CORENAMES, first], capture_output=True, text=True, env=clean)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.split()
+
+
+def cpu_flags() -> set[str]:
+    with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+        return set(next((line for line in f if line.startswith("flags")), "").split())
+
+
+def test_numpy_and_scipy_compute_with_the_pinned_kernels_wherever_the_cpu_runs_them():
+    pinned = os.uname().machine == "x86_64" and {"avx2", "fma"} <= cpu_flags()
+    own = corenames("numpy")  # OpenBLAS's own choice for this CPU
+    with_daq = corenames("daq")
+    assert with_daq == ([daq.BLAS_KERNEL] * 2 if pinned else own), (own, with_daq)
+    # a kernel set the environment names is the user's choice, not overridden
+    assert corenames("daq", OPENBLAS_CORETYPE="Sandybridge") == ["Sandybridge"] * 2
+
+
+def test_the_rule_reads_the_cpu_flags_and_leaves_the_rest_to_openblas(tmp_path):
+    """Run in a fresh interpreter that has not loaded numpy (OpenBLAS reads the variable as it loads)."""
+    cases = {"avx2 fma": daq.BLAS_KERNEL, "sse4_2 avx": None, "avx2": None}
+    for flags, expect in cases.items():
+        info = tmp_path / f"cpuinfo-{flags.replace(' ', '-')}"
+        info.write_text(f"processor\t: 0\nvendor_id\t: x\nflags\t\t: fpu {flags} sse2\n\nprocessor\t: 1\n")
+        code = (f"import os, sys; os.environ.pop('OPENBLAS_CORETYPE', None); import daq; "
+                f"os.environ.pop('OPENBLAS_CORETYPE', None); r = daq.pin_blas_kernel({str(info)!r}); "
+                f"print(r, os.environ.get('OPENBLAS_CORETYPE'), 'numpy' in sys.modules)")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.split()
+        if os.uname().machine != "x86_64":  # another architecture: left to OpenBLAS whatever the flags say
+            expect = None
+        assert out == [str(expect), str(expect), "False"], (flags, out)
+    # numpy loaded already: too late to choose, said as None, the environment untouched
+    code = ("import os, sys; import numpy; os.environ.pop('OPENBLAS_CORETYPE', None); import daq; "
+            "print(daq.pin_blas_kernel(), 'OPENBLAS_CORETYPE' in os.environ)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.split() == ["None",
+                                                                                                         "False"]
