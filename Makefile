@@ -10,7 +10,7 @@ demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
 # two workers (pytest-xdist), a file each at a time in conftest.py's order: the real-time files one chain on one worker
-# beside the long computations on the other (decision 45): 630-637 s on clean clones of the 2-core machine of
+# beside the long computations on the other (decision 45): 613-657 s on clean clones of the 2-core machine of
 # 2026-11-28 (kernel 21 ms; 22-26 min on the one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2

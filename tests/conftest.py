@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import daq  # noqa: F401, I001 - before numpy (matplotlib's): daq pins numpy's BLAS kernel as numpy loads (pin_blas_kernel)
+import daq  # noqa: F401, I001 - before numpy (matplotlib's): daq pins the BLAS kernels numpy loads (decision 46)
 import matplotlib
 import pytest
 from xdist.scheduler import LoadFileScheduling
