@@ -9,9 +9,9 @@ BIN := $(VENV)/bin
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
-# two workers (pytest-xdist), a file each at a time in conftest.py's order: the real-time files one chain on one worker
-# beside the long computations on the other (decision 45): 613-657 s on clean clones of the 2-core machine of
-# 2026-11-28 (kernel 21 ms; 22-26 min on the one it had earlier that day, at half its speed).
+# two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first, the real-time files
+# paired): 746 s on a clean clone of the 2-core machine of 2026-11-28 before that day's kernel change (22-26 min on the
+# one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages

@@ -2,9 +2,8 @@
 
 `make test` runs the suite on two pytest-xdist workers, a file to a worker at a time (``-n 2 --dist loadfile
 --no-loadscope-reorder``: a module's fixtures, such as a daemon, are started once), taking files in collection
-order: RUN_FIRST below (REAL_TIME's files first, as one unit of work), then the files with a slow test, then the
-rest. Tests that take seconds are marked ``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs
-them all).
+order: RUN_FIRST below, then the files with a slow test, then the rest. Tests that take seconds are marked
+``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
 """
 
 from __future__ import annotations
@@ -19,67 +18,45 @@ from pathlib import Path
 import daq  # noqa: F401, I001 - before numpy (matplotlib's): daq pins the BLAS kernels numpy loads (decision 46)
 import matplotlib
 import pytest
-from xdist.scheduler import LoadFileScheduling
 
 pytest.register_assert_rewrite("helpers")  # its assertions explain themselves as a test file's do
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-# The files that run in real time (a daemon against a simulated bench, a soak, a browser) are one unit of work: one
-# worker runs them one after another, started first, while the other computes (their assertions hold rates and
-# reaction times to bounds: never two daemons, each with its bench, recorder, estimator and browser, on two cores at
-# once). When the chain ends, its worker computes too. Why: with every file a unit of its own, the real-time files
-# ran last, paired with each other and waiting on the wall clock, and the machine was 89 % busy (1313 CPU-s in
-# 734 s of wall, 2026-11-28); beside one fit they wait on the wall clock while the fit uses the core they leave.
-# Decision record: docs/decisions/0045-the-real-time-files-beside-one-fit.md (and 0042: three workers, withdrawn).
-REAL_TIME = (  # seconds of wall time, alone after the computations, 2026-11-28
-    "test_demo_loop.py",  # 104 s: two runs through the daemon, diagnoses, a proposal
-    "test_daemon_e2e.py",  # 53 s
-    "test_campaign.py",  # 48 s
-    "test_soak.py",  # 43 s: a half-minute soak
-    "test_web.py",  # 31 s
-    "test_reliability_web.py",  # 23 s
-    "test_soak_memory.py",  # 16 s
-    "test_reliability_daemon.py",  # 12 s
-    "test_crash_recovery.py",  # 9 s
-)
-# The long computations, the longest first (CPU seconds of the file's tests, `make test` on a 2-core machine,
-# 2026-11-28). The short files come last, so the two workers finish together. Re-measure (`DAQ_TEST_TIMELINE=FILE`,
-# then `python tests/timeline.py FILE`) when a file grows or shrinks by tens of seconds; a new long file belongs in
-# a list.
+# The long files, in the order the two workers take them (seconds: the file's tests summed, `make test` on a 2-core
+# machine with both workers busy, 2026-11-28: 2663 s in all, 1363 s of wall time). First the long computations, both
+# workers busy with fits and simulations; then the files that run in real time (a daemon against a simulated bench, a
+# soak, a browser), paired with each other rather than with a fit that keeps both cores busy: their assertions hold
+# rates and reaction times to bounds. The short files come last, so the two workers finish together. Re-measure
+# (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py FILE`) when a file grows or shrinks by tens of seconds; a
+# new long file belongs in the list. Why not three workers with the real-time files on one:
+# docs/decisions/0042-the-suite-on-three-workers.md (tried, rejected); why not the real-time files as one chain beside
+# one fit: 0045 (tried, withdrawn: the soak's motor poll failed once in six clean clones).
 RUN_FIRST = (
-    *REAL_TIME,
-    "test_diagnose.py",  # 259 s
-    "test_propose_loop.py",  # 184 s: two experiment loops through the CLI on the reference rig
-    "test_recovery.py",  # 128 s
-    "test_rsf.py",  # 96 s: two of the user's paths
-    "test_archive.py",  # 82 s: Dask clusters
-    "test_refsim.py",  # 56 s
-    "test_real_slider.py",  # 41 s
-    "test_diagnose_multi.py",  # 38 s
-    "test_robust.py",  # 32 s
-    "test_belt_model.py",  # 18 s
-    "test_paper000.py",  # 17 s
-    "test_propose.py",  # 16 s
+    # computations
+    "test_rsf.py",  # 190 s: two of the user's paths
+    "test_propose_loop.py",  # 273 s: two experiment loops through the CLI on the reference rig
+    "test_recovery.py",  # 203 s
+    "test_diagnose.py",  # 347 s
+    "test_real_slider.py",  # 79 s
+    "test_refsim.py",  # 138 s
+    "test_robust.py",  # 82 s
+    "test_belt_model.py",  # 43 s
+    "test_paper000.py",  # 41 s
+    "test_archive.py",  # 127 s: Dask clusters
+    "test_diagnose_multi.py",  # 66 s
+    "test_propose.py",  # 25 s
+    # in real time
+    "test_demo_loop.py",  # 276 s: two runs through the daemon, diagnoses, a proposal
+    "test_campaign.py",  # 82 s
+    "test_daemon_e2e.py",  # 125 s
+    "test_soak.py",  # 63 s: a half-minute soak
+    "test_web.py",  # 105 s
+    "test_reliability_web.py",  # 33 s
+    "test_reliability_daemon.py",  # 42 s
+    "test_crash_recovery.py",  # 44 s
 )
-
-
-class _RealTimeTogether(LoadFileScheduling):
-    """xdist's loadfile, a file to a worker at a time, except that REAL_TIME's files are one unit of work."""
-
-    def _split_scope(self, nodeid: str) -> str:
-        file = super()._split_scope(nodeid)
-        return "real-time" if file.rsplit("/", 1)[-1] in REAL_TIME else file
-
-
-@pytest.hookimpl(optionalhook=True)  # a run without xdist (``-p no:xdist``) does not know the hook
-def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile`` (``make test``) with the real-time files together: see _RealTimeTogether. (Not xdist's own
-    ``loadgroup`` with marks: under pytest 9.2 it groups nothing, as it renames a node id pytest no longer reads.)"""
-    if config.getvalue("dist") == "loadfile":
-        return _RealTimeTogether(config, log)
-    return None
 
 
 def pytest_collection_modifyitems(config, items):
