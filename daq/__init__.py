@@ -60,6 +60,16 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {"errors": ["DaqError", "
 BLAS_KERNEL = "Haswell"  # OpenBLAS's AVX2 + FMA kernels: every x86-64 CPU of the last ten years runs them
 
 
+def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> set[str]:
+    """The first CPU's flags as the kernel lists them (x86's ``flags`` line); empty where there is none to read
+    (another architecture's cpuinfo has no such line, another system no such file)."""
+    try:
+        with open(cpuinfo, encoding="ascii", errors="replace") as f:
+            return set(next((line for line in f if line.startswith("flags")), "").split())
+    except OSError:
+        return set()
+
+
 def pin_blas_kernel(cpuinfo: str = "/proc/cpuinfo") -> str | None:
     """Make numpy's and scipy's OpenBLAS use one kernel set (``OPENBLAS_CORETYPE`` = BLAS_KERNEL) on every x86-64
     CPU that has AVX2 and FMA, unless the environment names one. Returns the kernel set, or None where it is left
@@ -74,17 +84,9 @@ def pin_blas_kernel(cpuinfo: str = "/proc/cpuinfo") -> str | None:
     this package is imported before numpy by our commands, our processes and the test suite's conftest."""
     if "OPENBLAS_CORETYPE" in os.environ:
         return os.environ["OPENBLAS_CORETYPE"]
-    if "numpy" in sys.modules or os.uname().machine not in ("x86_64", "AMD64"):
-        return None
-    try:
-        with open(cpuinfo, encoding="ascii", errors="replace") as f:
-            flags = next((line for line in f if line.startswith("flags")), "").split()
-    except OSError:
-        return None
-    if "avx2" not in flags or "fma" not in flags:
+    if "numpy" in sys.modules or not {"avx2", "fma"} <= cpu_flags(cpuinfo):
         return None
     os.environ["OPENBLAS_CORETYPE"] = BLAS_KERNEL
     return BLAS_KERNEL
-
 
 pin_blas_kernel()

@@ -32,13 +32,8 @@ def corenames(first: str, **env: str) -> list[str]:
     return r.stdout.split()
 
 
-def cpu_flags() -> set[str]:
-    with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
-        return set(next((line for line in f if line.startswith("flags")), "").split())
-
-
 def test_numpy_and_scipy_compute_with_the_pinned_kernels_wherever_the_cpu_runs_them():
-    pinned = os.uname().machine == "x86_64" and {"avx2", "fma"} <= cpu_flags()
+    pinned = {"avx2", "fma"} <= daq.cpu_flags()  # x86's flags (another architecture's cpuinfo has no such line)
     own = corenames("numpy")  # OpenBLAS's own choice for this CPU
     with_daq = corenames("daq")
     assert with_daq == ([daq.BLAS_KERNEL] * 2 if pinned else own), (own, with_daq)
@@ -48,16 +43,16 @@ def test_numpy_and_scipy_compute_with_the_pinned_kernels_wherever_the_cpu_runs_t
 
 def test_the_rule_reads_the_cpu_flags_and_leaves_the_rest_to_openblas(tmp_path):
     """Run in a fresh interpreter that has not loaded numpy (OpenBLAS reads the variable as it loads)."""
-    cases = {"avx2 fma": daq.BLAS_KERNEL, "sse4_2 avx": None, "avx2": None}
+    cases = {"avx2 fma": daq.BLAS_KERNEL, "sse4_2 avx": None, "avx2": None, "": None}
+    assert daq.cpu_flags(str(tmp_path / "none")) == set()  # no cpuinfo (another system): nothing pinned
     for flags, expect in cases.items():
         info = tmp_path / f"cpuinfo-{flags.replace(' ', '-')}"
-        info.write_text(f"processor\t: 0\nvendor_id\t: x\nflags\t\t: fpu {flags} sse2\n\nprocessor\t: 1\n")
+        info.write_text(f"processor\t: 0\nvendor_id\t: x\nflags\t\t: fpu {flags} sse2\n\nprocessor\t: 1\n" if flags
+                        else "processor\t: 0\nFeatures\t: fp asimd evtstrm\n")  # "": an aarch64 cpuinfo, no flags
         code = (f"import os, sys; os.environ.pop('OPENBLAS_CORETYPE', None); import daq; "
                 f"os.environ.pop('OPENBLAS_CORETYPE', None); r = daq.pin_blas_kernel({str(info)!r}); "
                 f"print(r, os.environ.get('OPENBLAS_CORETYPE'), 'numpy' in sys.modules)")
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.split()
-        if os.uname().machine != "x86_64":  # another architecture: left to OpenBLAS whatever the flags say
-            expect = None
         assert out == [str(expect), str(expect), "False"], (flags, out)
     # numpy loaded already: too late to choose, said as None, the environment untouched
     code = ("import os, sys; import numpy; os.environ.pop('OPENBLAS_CORETYPE', None); import daq; "

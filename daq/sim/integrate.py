@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from daq.physics.contact import N_AUX
+from daq.physics.jit import helper
 
 
 def _rk4_template(s0, t0, dt, n_sub, n_out, p, e, rt, rv):
@@ -85,7 +86,7 @@ def make_rk4(rhs, tag: str, cache: bool = True):
     Measured 2026-11-28 on the 2-core machine of the suite.
     """
     g = dict(_rk4_template.__globals__)
-    g["rhs"] = njit(inline="always", error_model="numpy")(getattr(rhs, "py_func", rhs))
+    g["rhs"] = helper(getattr(rhs, "py_func", rhs))  # the project's inlined helper (daq.physics.jit)
     g["rhs_out"] = rhs
     fn = types.FunctionType(_rk4_template.__code__, g, f"rk4_{tag}")
     fn.__qualname__ = f"rk4_{tag}"
