@@ -11,7 +11,7 @@ demo: $(VENV)/.installed
 
 # three workers (pytest-xdist) on two cores, a file each at a time in conftest.py's order: the files on the clock
 # (daemons, a soak, a browser, devices) one chain on the first worker, the computations on the others at nice 10
-# (decision 47): 618-636 s on clean clones of the 2-core machine of 2026-11-28 (607-684 s before, two workers).
+# (decision 47): 613-636 s on clean clones of the 2-core machine of 2026-11-28 (607-684 s before, two workers).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 3
 test: $(VENV)/.installed system-packages
