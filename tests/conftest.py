@@ -144,7 +144,8 @@ def pytest_collection_modifyitems(config, items):
 def _yield_to_the_clock(item) -> None:
     """A worker of a parallel run that starts a computation lowers its priority to nice 10 for good (a process cannot
     raise it again): the files on the clock run in the chain on another worker (_OnTheClock), or have all run. A
-    serial run keeps its priority."""
+    serial run keeps its priority. (A worker cannot tell ``--dist load`` from ``loadfile``: both read "no" there; in
+    ``load`` a file on the clock may follow a computation on a worker at nice 10, so `make test` uses loadfile.)"""
     if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1 and _is_computation(item.path):
         now = os.nice(0)
         if now < COMPUTING_NICENESS:
