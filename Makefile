@@ -9,11 +9,11 @@ BIN := $(VENV)/bin
 demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
-# three workers (pytest-xdist) on two cores, a file each at a time in conftest.py's order: the files on the clock
-# (daemons, a soak, a browser, devices) one chain on the first worker, the computations on the others at nice 10
-# (decision 47): 613-636 s on clean clones of the 2-core machine of 2026-11-28 (607-684 s before, two workers).
+# two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first, the real-time files
+# paired): 607 s on a clean clone of the 2-core machine of 2026-11-28 (746 s before that day's kernel change; 22-26 min
+# on the one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
-PYTEST_WORKERS ?= 3
+PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=25
 

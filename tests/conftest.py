@@ -1,9 +1,9 @@
 """Shared fixtures (rig configs and short simulations, computed once per session), and the order files run in.
 
-`make test` runs the suite on three pytest-xdist workers, a file to a worker at a time (``-n 3 --dist loadfile
---no-loadscope-reorder``: a module's fixtures, such as a daemon, are started once): the files on the clock one after
-another on the first worker, the computations (COMPUTATIONS below) on the others at nice 10, the longest first. Tests
-that take seconds are marked ``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
+`make test` runs the suite on two pytest-xdist workers, a file to a worker at a time (``-n 2 --dist loadfile
+--no-loadscope-reorder``: a module's fixtures, such as a daemon, are started once), taking files in collection
+order: RUN_FIRST below, then the files with a slow test, then the rest. Tests that take seconds are marked
+``slow``: ``pytest -m "not slow"`` is the quick loop (``make test`` runs them all).
 """
 
 from __future__ import annotations
@@ -18,138 +18,55 @@ from pathlib import Path
 import daq  # noqa: F401, I001 - before numpy (matplotlib's): daq pins the BLAS kernels numpy loads (decision 46)
 import matplotlib
 import pytest
-from xdist.scheduler import LoadFileScheduling
 
 pytest.register_assert_rewrite("helpers")  # its assertions explain themselves as a test file's do
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-# Two kinds of file. COMPUTATIONS fit, simulate and diagnose: they need the CPU and no clock. Every other file is on
-# the clock: a daemon against a simulated bench, a soak, a browser, a serial or CAN device with its reply timeout, a
-# Dask cluster with its heartbeats; its assertions hold rates and reaction times to bounds.
-#
-# `make test` runs three workers on two cores. The files on the clock are one unit of work (_OnTheClock): the first
-# worker runs them one after another, at the priority they were started with, while the two others compute at nice 10
-# (_yield_to_the_clock), so a computation takes mostly the CPU the clock's processes leave. When the chain ends, its
-# worker computes too. Why: paired with each other, the files on the clock waited on the wall clock at the end while
-# a core idled (the machine 85-90 % busy, 607-684 s on clean clones); beside fits at the same priority, the demo's
-# record and the soak's motor poll depended on the load beside them (decisions 42 and 45, withdrawn). At nice 10 a fit
-# gets a tenth of a core against a process at nice 0 that wants it, and a process that wakes at nice 0 runs at once
-# (not nice 19: a computation's CLI subprocess, with its 60 s timeout, must not starve beside a chain's forked fit).
-# Decision record: docs/decisions/0047-computations-yield-to-the-clock.md.
-#
-# The computations, the longest first (CPU seconds of the file's tests, clean clone of 675c3dd on a 2-core machine,
-# 2026-11-28); the short ones after, in any order. A new file is on the clock unless it is listed here: a computation
-# left off the list runs at full priority in the chain (slower, never wrong); a file on the clock put on it runs at
-# nice 10 beside fits (wrong). Re-measure (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py FILE`) when a file
-# grows or shrinks by tens of seconds.
-COMPUTATIONS = (
-    "test_diagnose.py",  # 183 s
-    "test_propose_loop.py",  # 143 s: two experiment loops through the CLI on the reference rig
-    "test_rsf.py",  # 105 s: two of the user's paths
-    "test_recovery.py",  # 89 s
-    "test_refsim.py",  # 52 s
-    "test_real_slider.py",  # 36 s
-    "test_diagnose_multi.py",  # 30 s
-    "test_robust.py",  # 30 s
-    "test_paper000.py",  # 19 s
-    "test_belt_model.py",  # 17 s
-    "test_propose.py",  # 13 s
-    "test_cli_basic.py",  # 13 s
-    "test_models.py",  # 10 s
-    "test_archive_results.py",  # 9 s
-    "test_layering.py",  # 7 s
-    "test_bad_values.py",  # 6 s
-    "test_paper001.py",
-    "test_paper002.py",
-    "test_ringing.py",
-    "test_blas_kernel.py",
-    "test_effect_forms.py",
-    "test_effect_chain.py",
-    "test_effects_sim.py",
-    "test_old_readers.py",
-    "test_convergence.py",
-    "test_physics.py",
-    "test_ramps.py",
-    "test_model_rate.py",
-    "test_import_mapped.py",
-    "test_import.py",
-    "test_config.py",
-    "test_frames.py",
-    "test_programmes.py",
-    "test_interchange.py",
-    "test_windows.py",
-    "test_shooting_solver.py",
-    "test_seed_case.py",
-    "test_user_rig.py",
-    "test_where.py",
-    "test_margins.py",
-    "test_timeline.py",
+# The long files, in the order the two workers take them (seconds: the file's tests summed, `make test` on a 2-core
+# machine with both workers busy, 2026-11-28: 2663 s in all, 1363 s of wall time). First the long computations, both
+# workers busy with fits and simulations; then the files that run in real time (a daemon against a simulated bench, a
+# soak, a browser), paired with each other rather than with a fit that keeps both cores busy: their assertions hold
+# rates and reaction times to bounds. The short files come last, so the two workers finish together. Re-measure
+# (`DAQ_TEST_TIMELINE=FILE`, then `python tests/timeline.py FILE`) when a file grows or shrinks by tens of seconds; a
+# new long file belongs in the list. Why not three workers with the real-time files on one:
+# docs/decisions/0042-the-suite-on-three-workers.md (tried, rejected); why not the real-time files as one chain beside
+# one fit: 0045 (tried, withdrawn: the soak's motor poll failed once in six clean clones); nor that chain at full
+# priority beside fits at nice 10 on three workers: 0047 (tried, withdrawn: the closed-loop demo missed its floor once
+# in six).
+RUN_FIRST = (
+    # computations
+    "test_rsf.py",  # 190 s: two of the user's paths
+    "test_propose_loop.py",  # 273 s: two experiment loops through the CLI on the reference rig
+    "test_recovery.py",  # 203 s
+    "test_diagnose.py",  # 347 s
+    "test_real_slider.py",  # 79 s
+    "test_refsim.py",  # 138 s
+    "test_robust.py",  # 82 s
+    "test_belt_model.py",  # 43 s
+    "test_paper000.py",  # 41 s
+    "test_archive.py",  # 127 s: Dask clusters
+    "test_diagnose_multi.py",  # 66 s
+    "test_propose.py",  # 25 s
+    # in real time
+    "test_demo_loop.py",  # 276 s: two runs through the daemon, diagnoses, a proposal
+    "test_campaign.py",  # 82 s
+    "test_daemon_e2e.py",  # 125 s
+    "test_soak.py",  # 63 s: a half-minute soak
+    "test_web.py",  # 105 s
+    "test_reliability_web.py",  # 33 s
+    "test_reliability_daemon.py",  # 42 s
+    "test_crash_recovery.py",  # 44 s
 )
-# The files on the clock, the longest first (wall seconds, paired after the computations, 2026-11-28); the others on
-# the clock follow in any order.
-ON_THE_CLOCK_FIRST = (
-    "test_demo_loop.py",  # 93 s: two runs through the daemon, diagnoses, a proposal
-    "test_campaign.py",  # 66 s
-    "test_archive.py",  # 65 s: Dask clusters, a worker killed
-    "test_daemon_e2e.py",  # 64 s
-    "test_web.py",  # 48 s
-    "test_soak.py",  # 47 s: a half-minute soak
-    "test_reliability_web.py",  # 25 s
-    "test_soak_memory.py",  # 18 s
-    "test_reliability_daemon.py",  # 18 s
-    "test_crash_recovery.py",  # 12 s
-)
-CHAIN = "on-the-clock"
-COMPUTING_NICENESS = 10
-
-
-def _is_computation(path: Path) -> bool:
-    return path.name in COMPUTATIONS
-
-
-class _OnTheClock(LoadFileScheduling):
-    """xdist's loadfile, a file to a worker at a time, except that the files on the clock are one unit of work."""
-
-    def _split_scope(self, nodeid: str) -> str:
-        file = super()._split_scope(nodeid)
-        return file if file.rsplit("/", 1)[-1] in COMPUTATIONS else CHAIN
-
-
-@pytest.hookimpl(optionalhook=True)  # a run without xdist (``-p no:xdist``) does not know the hook
-def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile`` (``make test``) with the files on the clock together: see _OnTheClock. (Not xdist's own
-    ``loadgroup`` with marks: under pytest 9.2 it groups nothing, as it renames a node id pytest no longer reads.)"""
-    if config.getvalue("dist") == "loadfile":
-        return _OnTheClock(config, log)
-    return None
 
 
 def pytest_collection_modifyitems(config, items):
-    """The files on the clock first (ON_THE_CLOCK_FIRST's in its order: the chain's unit is then the first, and the
-    first worker's), then COMPUTATIONS in its order (a stable sort: inside a file the order is unchanged)."""
-    clock = {name: i for i, name in enumerate(ON_THE_CLOCK_FIRST)}
-    computing = {name: i for i, name in enumerate(COMPUTATIONS)}
-
-    def rank(item) -> tuple[int, int]:
-        name = item.path.name
-        if name in computing:
-            return 2, computing[name]
-        return (0, clock[name]) if name in clock else (1, 0)
-
-    items.sort(key=rank)
-
-
-def _yield_to_the_clock(item) -> None:
-    """A worker of a parallel run that starts a computation lowers its priority to nice 10 for good (a process cannot
-    raise it again): the files on the clock run in the chain on another worker (_OnTheClock), or have all run. A
-    serial run keeps its priority. (A worker cannot tell ``--dist load`` from ``loadfile``: both read "no" there; in
-    ``load`` a file on the clock may follow a computation on a worker at nice 10, so `make test` uses loadfile.)"""
-    if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1 and _is_computation(item.path):
-        now = os.nice(0)
-        if now < COMPUTING_NICENESS:
-            os.nice(COMPUTING_NICENESS - now)
+    """RUN_FIRST's files in its order, then the other files with a slow test, then the rest (a stable sort: inside a
+    file, and within each of the last two parts, the order is unchanged)."""
+    rank = {name: i for i, name in enumerate(RUN_FIRST)}
+    with_slow = {item.path.name for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank) + (item.path.name not in with_slow)))
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
@@ -197,14 +114,12 @@ def _cpu_s() -> tuple[float, float]:
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    """A computation's worker first yields to the clock (_yield_to_the_clock: before the test's fixtures start).
-    With DAQ_TEST_TIMELINE=FILE, each test's worker, start and end (wall clock), and the CPU it cost are appended
-    to FILE: how the workers filled the suite's time, to re-order COMPUTATIONS by, and where the CPU went, to cut
+    """With DAQ_TEST_TIMELINE=FILE, each test's worker, start and end (wall clock), and the CPU it cost are appended
+    to FILE: how the two workers filled the suite's time, to re-order RUN_FIRST by, and where the CPU went, to cut
     (tests/timeline.py reads it). Why CPU too: the suite is compute-bound (its wall time is about half its CPU on two
     cores), so a test's wall time beside another says little about what it costs. The CPU is the worker's own and
     its reaped children's (a forked pool's, a CLI subprocess's, a daemon's with what it reaped), counted in the test
     that reaps them."""
-    _yield_to_the_clock(item)
     t0, (self0, kids0) = time.time(), _cpu_s()
     yield
     path = os.environ.get("DAQ_TEST_TIMELINE")

@@ -3,9 +3,6 @@ are one span, from the suite's first start; another file, or the same file later
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from conftest import COMPUTATIONS, ON_THE_CLOCK_FIRST
 from timeline import cpu_by_file, cpu_table, spans
 
 
@@ -31,14 +28,3 @@ def test_the_cpu_is_summed_by_file_and_compared_with_a_baseline_line_by_line():
     assert table[0].split() == ["4.0", "s", "0.50x", "test_a.py"]
     assert table[1].split() == ["0.5", "s", "1.00x", "test_b.py"]
     assert table[-1].split() == ["4.5", "s", "0.53x", "all", "2", "files"]
-
-
-def test_every_file_the_order_names_is_a_test_file_and_of_one_kind():
-    """conftest.py's two kinds (decision 47): a name of COMPUTATIONS or ON_THE_CLOCK_FIRST that is no file (a file
-    renamed) would silently move the file to the chain or out of the chain's order; a file in both would compute at
-    nice 10 though it runs on the clock."""
-    here = {p.name for p in Path(__file__).parent.glob("test_*.py")}
-    assert set(COMPUTATIONS) <= here, set(COMPUTATIONS) - here
-    assert set(ON_THE_CLOCK_FIRST) <= here, set(ON_THE_CLOCK_FIRST) - here
-    assert not set(COMPUTATIONS) & set(ON_THE_CLOCK_FIRST)
-    assert len(set(COMPUTATIONS)) == len(COMPUTATIONS)

@@ -1,6 +1,6 @@
 """How the suite's workers spent their time: ``DAQ_TEST_TIMELINE=/tmp/t.tsv make test``, then
 ``python tests/timeline.py /tmp/t.tsv [BASELINE.tsv]``. Prints, per worker, its files in the order it ran them (start,
-seconds), and when each worker finished: the gap between them is what a better COMPUTATIONS order (conftest.py) can
+seconds), and when each worker finished: the gap between the two is what a better RUN_FIRST order (conftest.py) can
 win. Then the CPU by file, the costliest first (the suite is compute-bound: a cut shows there, not in a file's wall
 time beside another), and with a BASELINE timeline (another commit, or the same on another machine) each file's
 ratio to it and the whole suite's: what a change saved, measured in the same units.
