@@ -89,4 +89,5 @@ def pin_blas_kernel(cpuinfo: str = "/proc/cpuinfo") -> str | None:
     os.environ["OPENBLAS_CORETYPE"] = BLAS_KERNEL
     return BLAS_KERNEL
 
+
 pin_blas_kernel()
