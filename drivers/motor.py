@@ -213,10 +213,17 @@ class SerialMotorRegulator(MotorDrive):
 
     def _read_reply(self, want: int) -> str | None:
         """The body of the reply tagged ``want``; None on a corrupted reply, a command the regulator
-        received corrupted (untagged ``ERR 1``), or a timeout: the caller re-sends."""
+        received corrupted (untagged ``ERR 1``), or a timeout: the caller re-sends.
+
+        The deadline is judged *before* each read and the loop ends only after the read that followed it: a thread
+        descheduled past the deadline (a starved host) first reads what arrived meanwhile. Judged after the read
+        (before 2026-11-28), a reply waiting in the port was a timeout, a re-send and a discarded late reply; with
+        every re-send starved alike, a failed poll on a regulator that had answered each time."""
         deadline = time.monotonic() + self.cfg.timeout_s
         assert self._port is not None
-        while time.monotonic() < deadline:
+        expired = False
+        while not expired:
+            expired = time.monotonic() >= deadline
             if not self._pending:
                 data = self._port.read(self._port.in_waiting or 1)
                 self._pending.extend(self._lines.feed(data))

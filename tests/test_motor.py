@@ -234,6 +234,37 @@ def test_a_write_timeout_is_a_retry_not_a_lost_port(bench, monkeypatch):
     assert drv.state == DriverState.CONNECTED and drv.reconnects == 0 and sim.state == "RUNNING"
 
 
+def test_a_reply_that_came_while_the_host_was_descheduled_is_read_not_timed_out(bench, monkeypatch):
+    """The host's thread reads nothing yet (the regulator answers 30 ms later), then is descheduled past its reply
+    timeout (a starved host): the reply waiting in the port is read, one write, no frame error, nothing discarded.
+    Before 2026-11-28 the deadline was judged first: a timeout, a re-send and the good reply thrown away as late."""
+    rig, port, sim, drv = bench
+    drv.stop_heartbeat()
+    drv.enable()
+    writes, stalls = [], []
+    real_write, real_read = drv._port.write, drv._port.read
+
+    def counted_write(data):
+        writes.append(data)
+        return real_write(data)
+
+    def starved_read(n=1):
+        data = real_read(n)
+        if not data and not stalls:
+            stalls.append(n)
+            time.sleep(drv.cfg.timeout_s + 0.1)  # descheduled right after an empty read
+        return data
+
+    monkeypatch.setattr(drv._port, "write", counted_write)
+    monkeypatch.setattr(drv._port, "read", starved_read)
+    sim.late_by_s, sim.late_replies = 0.03, 1
+    errors, stale = drv.frame_errors, drv.stale_replies
+    measured, setpoint = drv.read_speed()
+    assert stalls and len(writes) == 1, writes
+    assert drv.frame_errors == errors and drv.stale_replies == stale
+    assert setpoint == 0.0 and drv.state == DriverState.CONNECTED
+
+
 def test_unplug_and_replug_recover_without_restart(bench):
     rig, port, sim, drv = bench
     drv.enable()
