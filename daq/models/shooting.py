@@ -34,7 +34,12 @@ from .windows import Windows
 BROYDEN = True  # carry the Jacobian by rank-one updates between finite-difference refreshes (see Problem.fit)
 # the same in each window's own start fit (fit_starts): off. On brake 100 Hz diagnoses it saved 10-30 % with the same
 # conclusions, but `daq bench diagnose` (1 kHz, 600 s, hidden stick-time) removed 90 % of the excess with it against
-# 98 % without: some windows' start fits end in another basin. Off until that is understood (decision 2).
+# 98 % without: some windows' start fits end in another basin. Off until that is understood (decision 2), except
+# from ``near`` (fit_starts): there the start is a state the model itself passed through (a proposal's predicted
+# record, design._TruthRecord), which the window's optimum is next to. Measured 2026-11-28 (`daq propose`, the two
+# cases of tests/test_propose_loop.py): 49.0 -> 44.0 CPU-s (null) and 52.1 -> 35.4 (tie); the same proposal, the same
+# decided rivals and conclusions after the run; of 84 programmes' worst-pair z, 83 the same to 1e-4 and one
+# 2.30 -> 2.38 (a programme that was not the best), separations within 1 % but two (8 % and 0.00 -> 0.04).
 BROYDEN_STARTS = False
 
 
@@ -262,7 +267,7 @@ class Problem:
         if near is None:
             first = self._fit_starts(values, windows, self.default_starts(windows), robust.SQUARES, max_iter)
         else:
-            first = self._fit_starts(values, windows, near, robust.SQUARES, max_iter, damping=lm.NEAR_DAMPING)
+            first = self._fit_starts(values, windows, near, robust.SQUARES, max_iter, near=True)
         if self.loss == robust.SQUARES:
             return first
         res = self._fit_starts(values, windows, first.start_values, self.loss, max_iter, after=first)
@@ -270,14 +275,15 @@ class Problem:
         return res
 
     def _fit_starts(self, values: dict[str, float], windows: np.ndarray, V: np.ndarray, loss_name: str,
-                    max_iter: int, after: ShootingFit | None = None, damping: float = lm.START_DAMPING) -> ShootingFit:
+                    max_iter: int, after: ShootingFit | None = None, near: bool = False) -> ShootingFit:
         """fit_starts' Levenberg-Marquardt per window from start values ``V`` under one loss (``after``: a previous
-        stage that ended there: its Jacobian and residuals are this one's first)."""
+        stage that ended there: its Jacobian and residuals are this one's first; ``near``: V are states the model
+        passed through: lm.NEAR_DAMPING and Broyden, see BROYDEN_STARTS)."""
         nw, nv = windows.size, self.n_start
         V = np.array(V, dtype=float)
         ww = self.weights[windows] if self.weights is not None else np.ones(nw)
         ob = lm.Starts(self.scaled, values, windows, len(self.outputs), ww, loss_name,
-                       np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv), BROYDEN_STARTS)
+                       np.maximum(np.abs(V).mean(axis=0), 1e-3) if nw else np.ones(nv), BROYDEN_STARTS or near)
         allr = np.arange(nw)
         handed = (nw > 0 and after is not None and after.z is not None and after.z.shape[0] == nw
                   and after.jac is not None)
@@ -292,7 +298,8 @@ class Problem:
         # a stage from a previous one's end starts near its optimum (small steps, low damping) and stops where no
         # window's start values would move by STAGE_SHIFT of their errors (from a damping of 100 Huber's stage took
         # 39 batched simulations a call, half of least squares' own)
-        st = lm.solve_starts(ob, lm.StartsState(V, R, cost, W, J, np.full(nw, 1e-2 if handed else damping),
+        damping = 1e-2 if handed else (lm.NEAR_DAMPING if near else lm.START_DAMPING)
+        st = lm.solve_starts(ob, lm.StartsState(V, R, cost, W, J, np.full(nw, damping),
                                                 0.5 * STAGE_SHIFT**2 if handed else 1e-4, np.ones(nw, bool),
                                                 np.zeros(nw, int)), max_iter)
         if nw:  # summary over windows, as the joint fit reports it
