@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import os
-import time
 import tomllib
 from pathlib import Path
 
@@ -295,17 +294,20 @@ def test_parse_rig_does_not_modify_its_input():
 
 
 def test_a_rig_file_edited_between_two_loads_is_read_again(tmp_path):
-    """load_rig keeps a parsed file per version (size, modification time): an edit is seen at once, a file made
-    invalid is refused again."""
+    """load_rig keeps a parsed file per text: an edit is seen at once, even one that keeps the file's size and its
+    modification time, and a file made invalid is refused again."""
     data = rig_data("brake-2dof")
     path = write_cfg(tmp_path, data, "mine.toml")
     first = load_rig(path)
-    data["mechanics"]["k1_N_per_m"] = 2.0 * first.mechanics.k1_N_per_m
-    write_cfg(tmp_path, data, "mine.toml")
-    os.utime(path, ns=(time.time_ns(), time.time_ns() + 10**9))  # a later mtime even on a coarse clock
-    assert load_rig(path).mechanics.k1_N_per_m == 2.0 * first.mechanics.k1_N_per_m
-    assert load_rig(path) == load_rig(path)
+    stat = path.stat()
+    text = path.read_text()
+    old = f"k1_N_per_m = {first.mechanics.k1_N_per_m!r}"
+    assert old in text and old[-1] != "7", old
+    path.write_text(text.replace(old, old[:-1] + "7"))  # the same size
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # and the same modification time
+    edited = load_rig(path)
+    assert edited.mechanics.k1_N_per_m != first.mechanics.k1_N_per_m and path.stat().st_size == stat.st_size
+    assert load_rig(path) == edited
     data["mechanics"]["k1_N_per_m"] = -1.0
     write_cfg(tmp_path, data, "mine.toml")
-    os.utime(path, ns=(time.time_ns(), time.time_ns() + 2 * 10**9))
     expect_read_error(load_rig, path, "mechanics.k1_N_per_m")
