@@ -16,6 +16,14 @@ record at its floor (1.45 / 1.42 um, 1.47 / 1.42 um). Weaker than it reads: its 
 forms are told apart by sticks over two decades); the log form's fit starts at tau 0.05 s, a decade below the
 slider's sticks, and likely ends short. What made it pass (before, stick-time was never a rival): start positions
 estimated at 500 Hz, held strengths reached in steps, "ruled out" asking what naming asks (decision 36, amended).
+
+**Fails on 2026-11-28 (55c1394, 15 min on 2 cores):** the first record names nothing (1.40 um, floor 1.42 um) and the
+rivals are the same three, but the proposal is a constant 12 mm/s for 60 s (worst-pair z -0.34, separation 0.14; it
+decides stick-time (log) and velocity strengthening, not belt-speed), almost every programme of the family scores a
+separation of 0.0, and both records together name nothing: 5.94 um, 4.2x the noise floor, the residual in the
+slips. Not this day's proposal change: the code before it (7cae63a) proposes the same programme (separation 0.14099
+against 0.14100). It broke between 2026-11-27 and 7cae63a; which commit is not found yet (a bisection costs ~15 min a
+step).
 """
 
 from __future__ import annotations
