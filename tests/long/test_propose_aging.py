@@ -22,8 +22,12 @@ rivals are the same three, but the proposal is a constant 12 mm/s for 60 s (wors
 decides stick-time (log) and velocity strengthening, not belt-speed), almost every programme of the family scores a
 separation of 0.0, and both records together name nothing: 5.94 um, 4.2x the noise floor, the residual in the
 slips. Not this day's proposal change: the code before it (7cae63a) proposes the same programme (separation 0.14099
-against 0.14100). It broke between 2026-11-27 and 7cae63a; which commit is not found yet (a bisection costs ~15 min a
-step).
+against 0.14100). Nor a break: 92cc41e, the commit this passed at, proposes 2 mm/s on the same first record only by a
+tie-break at the noise: in both versions four constant-speed programmes decide the same two rivals, and
+``Scored.rank`` then takes the widest *worst-pair* separation, which is the pair with belt-speed that no programme
+decides (0.046 against 0.0 at 92cc41e, 0.141 against 0.0 now). Which run is proposed among those is noise, and the
+2 mm/s run was the one that showed the aging. To mend: rank programmes that decide the same rivals by the separation
+of the pairs they decide, not by a pair none decides.
 """
 
 from __future__ import annotations
