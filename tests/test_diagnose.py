@@ -19,8 +19,9 @@ import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import (MIN_T, SCREEN_TIE, diagnose, fit_extensions, own_share, passes, score, to_fit,
-                                 windows_needed, z_attainable)
+from daq.models.diagnose import (MIN_T, SCREEN_TIE, diagnose, fit_extensions, own_share, passes, past_bound, score,
+                                 to_fit, windows_needed, z_attainable)
+from daq.models.screening import Column, Linearisation, gain_past_bound, predicted_gain
 from daq.models.session import Session
 from daq.models.spec import remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
@@ -139,6 +140,37 @@ def test_the_screening_cut_does_not_fall_between_near_equal_predictions():
     assert to_fit(gains, first=True) == [k1, body, rel, belt, vs, m]  # ...and just above it, a fit
     # the cut counts phenomena, not forms, and a phenomenon below `worth` is not fitted however close it is
     assert to_fit({k1: 10.0, body: 9.0, rel: 9.0, belt: 8.0, vs: 7.0}, first=False, worth=7.5) == [k1, body, rel, belt]
+
+
+def test_a_strength_whose_first_order_step_crosses_its_bound_is_fitted_when_its_score_past_it_ranks():
+    """The score test holds a one-sided strength (stick-time's gain >= 0) at its bound when the linear step would take
+    it below: predicted gain 0. Past the bound its score is the two-sided one (the same column, either sign); a
+    candidate whose score past the bound would be among those fitted is fitted too (diagnose.past_bound), one whose
+    step points inward is left to the score test as it was."""
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(6, 40))
+    jg = rng.normal(size=(6, 40, 2))
+    jv = rng.normal(size=(6, 40, 1))
+    lin = Linearisation(r, jg, jv, 0.5 * float(np.sum(r * r)))
+    stick = Candidate("effect", "stick-time", "log")
+    # a column along the residual: the cost falls as the strength goes *down* (c . r > 0, step -b/s < 0)
+    out = Column(stick, r + 0.3 * rng.normal(size=r.shape), +1)
+    two_sided = Column(stick, out.c, 0)
+    assert predicted_gain(lin, [out]) == 0.0 < gain_past_bound(lin, out)
+    assert gain_past_bound(lin, out) == pytest.approx(predicted_gain(lin, [two_sided]), rel=1e-9)
+    inward = Column(stick, -out.c, +1)  # the same column pointing inward: the score test has it, nothing past
+    assert gain_past_bound(lin, inward) == 0.0 < predicted_gain(lin, [inward])
+    assert gain_past_bound(lin, Column(stick, out.c, +1, switch=True)) == 0.0
+    # among fitted phenomena by that score, it is fitted; below the cut, not
+    vs, belt = Candidate("effect", "velocity-strengthening"), Candidate("effect", "belt-speed", "measured")
+    lines: list[str] = []
+    big = gain_past_bound(lin, out)
+    gains = {vs: 2 * big, belt: 3 * big, stick: 0.0}
+    assert past_bound(lin, {vs: None, belt: None, stick: out}, gains, True, 3.3, [belt, vs], lines.append) == [stick]
+    assert "stick-time (log)" in lines[0]
+    few = {**gains, Candidate("mechanics", "m_kg"): 8 * big, Candidate("mechanics", "k1_N_per_m"): 9 * big}
+    chosen = to_fit(few, first=True)
+    assert past_bound(lin, {stick: out}, few, True, 3.3, chosen, lines.append) == []  # fourth of four, and < tie
 
 
 @pytest.mark.slow

@@ -144,6 +144,20 @@ def predicted_gain(lin: Linearisation, cols: list[Column]) -> float:
     return _gain_with(lin, cols)
 
 
+def gain_past_bound(lin: Linearisation, col: Column) -> float:
+    """What a one-sided column (a strength at its bound) would predict if its step were allowed to cross the bound:
+    0 for a two-sided column or a switch, and for one whose step already points inward (predicted_gain has it).
+
+    Why it is asked: the fit it linearises may stand where other parameters make up for the missing effect, and
+    there the first-order step of the effect can point out of its range while a full fit, moving those parameters
+    back, takes it inward (the aging slider's two records, 4 and 16 mm/s: see diagnose.past_bound)."""
+    if col.switch or not col.sign:
+        return 0.0
+    base, _ = _reach(lin, [])
+    gain, step = _reach(lin, [col.c])
+    return max(gain - base, 0.0) if np.sign(step[-1]) == -col.sign else 0.0
+
+
 def _gain_with(lin: Linearisation, cols: list[Column], r: np.ndarray | None = None) -> float:
     """The decrease the columns add to the fitted parameters' own best linear correction of ``r``."""
     base, _ = _reach(lin, [], r)
