@@ -329,7 +329,10 @@ def _screen(session: Session, current: Fitted, cands: list[Candidate]):
 def past_bound(lin, cols: dict, gains: dict[Candidate, float], first: bool, worth: float,
                chosen: list[Candidate], say) -> list[Candidate]:
     """Candidates the score test cut only because their first-order step crosses their strength's bound, fitted
-    when their score past the bound would have put them among those fitted (:func:`to_fit`).
+    when their score past the bound would have put them among those fitted (:func:`to_fit`). Asked only when the
+    singles fitted leave the step open (none passes, or the best leaves much of the excess), before pairs: where
+    they explain the record it costs no fit (on `make test`'s diagnoses it fired in 6 tests asked first, +37 CPU-s
+    of 199 in test_diagnose.py, and changed no conclusion).
 
     Why: the current fit may stand where other parameters make up for the missing effect, and the linear step
     from there is no guide to the sign. Seen: the aging slider (Dieterich's law, tests/refsim/slider.py) at 4 and
@@ -371,7 +374,6 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
         e, f = current.rms(session.primary), floor_holder[session.primary]
         worth = max(MIN_GAIN, 0.5 * MIN_STEP * lin.cost * max(1.0 - (f / e) ** 2, 0.0))
     chosen = to_fit(gains, first, worth)
-    chosen += past_bound(lin, cols, gains, first, worth, chosen, say)
     # a structural switch is no derivative: its screening only ranks it loosely, so it is fitted in every step (in
     # the first step only, a pair case's second effect, the belt's ripple, went unfitted in step 2 once a fourth
     # phenomenon had pushed it out of the pairs of step 1: the conclusion hung on how many phenomena were fitted)
@@ -381,35 +383,61 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
         + ", ".join(f"{c.label} {g:.3g}" for c, g in top) + f"); fitting {', '.join(c.label for c in chosen) or 'none'}")
     if not chosen:
         return [], sorted((Screened(c, g) for c, g in gains.items()), key=lambda s: -s.predicted_gain), None
-    floors = floor_holder if not floor_holder else None
-    fits = fit_extensions(session, current, [(c,) for c in chosen], workers, floors=floors,
-                          on_done=lambda t: say(f"  refitted with {t[0].label}"), cold=cold, cost=cost)
-    keep_fits(seen, prefix, fits)
-    floor = floor_holder[session.primary]
-    scored = [score(base, current, fits[(c,)], (c,), floor, session, gains[c]) for c in chosen]
+
+    def singles(these: list[Candidate]) -> list[Scored]:
+        fits = fit_extensions(session, current, [(c,) for c in these], workers, cold=cold, cost=cost,
+                              floors=floor_holder if not floor_holder else None,
+                              on_done=lambda t: say(f"  refitted with {t[0].label}"))
+        keep_fits(seen, prefix, fits)
+        return [score(base, current, fits[(c,)], (c,), floor_holder[session.primary], session, gains[c])
+                for c in these]
+
+    scored = singles(chosen)
     siblings = switch_siblings(cands, chosen, cols, scored)
     if siblings:
         say(f"a switch passes: fitting its other forms too: {', '.join(c.label for c in siblings)}")
-        more = fit_extensions(session, current, [(c,) for c in siblings], workers, cold=cold, cost=cost,
-                              on_done=lambda t: say(f"  refitted with {t[0].label}"))
-        keep_fits(seen, prefix, more)
-        scored += [score(base, current, more[(c,)], (c,), floor, session, gains[c]) for c in siblings]
+        scored += singles(siblings)
         chosen += siblings
     scored.sort(key=lambda s: -s.score)
-    screened = sorted((Screened(c, g) for c, g in gains.items() if c not in chosen), key=lambda s: -s.predicted_gain)
+    floor = floor_holder[session.primary]
     if first and current.rms(session.primary) <= (1.0 + MIN_EXCESS) * floor:
-        return scored, screened, None  # no excess to explain (the singles only rank): no pairs either
+        return scored, _unfitted(gains, chosen), None  # no excess to explain (the singles only rank): no pairs either
+    ok = _taken(session, base, current, scored, floor, say)
+    if not (ok and ok[0].step_reduction >= PAIR_BELOW):  # a second look before pairs: the bound the step crossed
+        extra = past_bound(lin, cols, gains, first, worth, chosen, say)
+        if extra:
+            more = singles(extra)
+            chosen += extra
+            scored = sorted(scored + more, key=lambda s: -s.score)
+            ok = sorted(ok + _taken(session, base, current, more, floor, say), key=lambda s: -s.score)
+    screened = _unfitted(gains, chosen)
+    if ok and ok[0].step_reduction >= PAIR_BELOW:
+        return scored, screened, ok[0]
+    return scored, screened, _pairs(session, base, current, lin, cols, scored, ok, floor, say, workers, cold, cost,
+                                    seen, prefix)
+
+
+def _unfitted(gains: dict[Candidate, float], chosen: list[Candidate]) -> list[Screened]:
+    return sorted((Screened(c, g) for c, g in gains.items() if c not in chosen), key=lambda s: -s.predicted_gain)
+
+
+def _taken(session: Session, base: Fitted, current: Fitted, scored: list[Scored], floor: float, say) -> list[Scored]:
+    """The singles that pass and earn their step themselves (own_share), best first."""
     ok = [s for s in scored if passes(s)]
     for s in [s for s in ok if not own_share(session, base, current, s, floor)]:
         say(f"{s.label}: without it, at its fit's other values, the model reaches {s.error_neutral:.3g} (its fit "
             f"{s.error:.3g}): the fit improved, not the effect; not taken")
         ok.remove(s)
-    if ok and ok[0].step_reduction >= PAIR_BELOW:
-        return scored, screened, ok[0]
-    # no single passes, or the best leaves much of the excess: two effects at once may explain what neither
-    # does alone, and a single that mimics part of both (a mass for a friction keyed to acceleration) must
-    # not stand in for them. The best pairs of different phenomena among the best singles; a pair is taken
-    # over a passing single only when it is clearly better.
+    return sorted(ok, key=lambda s: -s.score)
+
+
+def _pairs(session: Session, base: Fitted, current: Fitted, lin, cols: dict, scored: list[Scored],
+           ok: list[Scored], floor: float, say, workers, cold: dict[str, float], cost: dict, seen: dict,
+           prefix: tuple[Candidate, ...]) -> Scored | None:
+    """No single passes, or the best leaves much of the excess: two effects at once may explain what neither
+    does alone, and a single that mimics part of both (a mass for a friction keyed to acceleration) must
+    not stand in for them. The best pairs of different phenomena among the best singles; a pair is taken
+    over a passing single only when it is clearly better."""
     phen: list[str] = []
     for sc in scored:  # the best phenomena by their best form's score...
         if sc.cands[0].phenomenon not in phen:
@@ -419,7 +447,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     top = [sc.cands[0] for sc in scored if sc.cands[0].phenomenon in phen]
     pairs = [(a, b) for a, b in combinations(top, 2) if a.phenomenon != b.phenomenon]
     if not pairs:
-        return scored, screened, (ok[0] if ok else None)
+        return ok[0] if ok else None
     pairs.sort(key=lambda ab: -predicted_gain(lin, [cols[ab[0]], cols[ab[1]]]))
     say(("no single candidate passes" if not ok else f"the best, {ok[0].label}, leaves "
          f"{1 - ok[0].step_reduction:.0%} of the excess") + "; fitting pairs: "
@@ -431,7 +459,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     say("pairs: " + ", ".join(f"{s.label} {s.step_reduction:.0%} (z {s.t_stat:.1f})" for s in pscored))
     pok = [s for s in pscored if passes(s) and (not ok or s.score >= ok[0].score + PAIR_MARGIN)
            and own_share(session, base, current, s, floor)]
-    return scored, screened, (pok[0] if pok else (ok[0] if ok else None))
+    return pok[0] if pok else (ok[0] if ok else None)
 
 
 def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate], floor: float, say,
