@@ -10,8 +10,8 @@ demo: $(VENV)/.installed
 	$(BIN)/daq demo
 
 # two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first, the real-time files
-# paired): 607-726 s, clean clones of the 2-core machine, 2026-11-28 (746 s before that day's kernel change; 22-26 min
-# on the one it had earlier that day, at half its speed).
+# paired): 607-726 s, clean clones of the 2-core machine, 2026-11-28, 703 s on 2026-11-29 (746 s before 11-28's kernel
+# change; 22-26 min on the one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed system-packages
