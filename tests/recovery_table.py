@@ -45,7 +45,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim) when run as a script
 
-from refsim import make as refsim
+import daq  # noqa: F401, I001 - before refsim's numpy: daq pins the BLAS kernels numpy loads (decision 46; run as a
+# script without it, the table was computed with this machine's own kernels, not the suite's, and the pair case's
+# perturbed diagnosis took another path by hand than in its test, 2026-11-29)
+from refsim import make as refsim  # noqa: I001
 
 from daq.cli.main import main as daq
 from daq.io.loading import load_data

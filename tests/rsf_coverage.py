@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+import daq  # noqa: F401, I001 - before numpy: daq pins the BLAS kernels numpy loads (decision 46), as in the suite
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -12,6 +12,7 @@ import json
 import math
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,8 @@ import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import (MIN_T, SCREEN_TIE, diagnose, fit_extensions, own_share, passes, past_bound, score,
-                                 to_fit, windows_needed, z_attainable)
+from daq.models.diagnose import (MIN_T, PAIR_TOP, SCREEN_TIE, diagnose, fit_extensions, own_share, pairs_to_fit, passes,
+                                 past_bound, score, to_fit, windows_needed, z_attainable)
 from daq.models.screening import Column, Linearisation, gain_past_bound, predicted_gain
 from daq.models.session import Session
 from daq.models.spec import remove_effect, save_model, seed_model
@@ -140,6 +141,35 @@ def test_the_screening_cut_does_not_fall_between_near_equal_predictions():
     assert to_fit(gains, first=True) == [k1, body, rel, belt, vs, m]  # ...and just above it, a fit
     # the cut counts phenomena, not forms, and a phenomenon below `worth` is not fitted however close it is
     assert to_fit({k1: 10.0, body: 9.0, rel: 9.0, belt: 8.0, vs: 7.0}, first=False, worth=7.5) == [k1, body, rel, belt]
+
+
+def test_a_structural_switch_has_its_pairs_however_its_single_ranks():
+    """pairs_to_fit: pairs of different phenomena among the PAIR_TOP best singles (every form fitted of each), and
+    a structural switch's phenomenon always, ranked where it may (seen: the belt's measured drive 5th alone, pushed
+    out of the pairs by a spring, and the pair it belonged to, 96 % of the excess, never fitted). Best predicted
+    first; a fourth phenomenon that is no switch stays out."""
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(6, 40))
+    lin = Linearisation(r, rng.normal(size=(6, 40, 2)), rng.normal(size=(6, 40, 1)), 0.5 * float(np.sum(r * r)))
+    mass, body, rel = (Candidate("mechanics", "m_kg"), Candidate("effect", "accel-sign", "body"),
+                       Candidate("effect", "accel-sign", "relative"))
+    spring, drive = Candidate("mechanics", "k1_N_per_m"), Candidate("effect", "belt-speed", "measured")
+    temp = Candidate("effect", "temperature", "linear")
+    order = [mass, rel, body, spring, temp, drive]  # the singles by score, best first
+    cols = {c: Column(c, rng.normal(size=r.shape), 0, switch=c is drive) for c in order}
+    scored = [types.SimpleNamespace(cands=(c,)) for c in order]
+    pairs = pairs_to_fit(lin, cols, scored)
+    assert PAIR_TOP == 3
+    names = {frozenset(c.label for c in p) for p in pairs}
+    assert {frozenset({"accel-sign (body)", "belt-speed (measured)"}),
+            frozenset({"accel-sign (relative)", "mechanics.m_kg"}),
+            frozenset({"mechanics.m_kg", "mechanics.k1_N_per_m"})} <= names
+    assert len(pairs) == 9 and not any(temp in p for p in pairs)  # 3 phenomena (4 forms) + the switch: 5 + 4 pairs
+    assert all(a.phenomenon != b.phenomenon for a, b in pairs)
+    gains = [predicted_gain(lin, [cols[a], cols[b]]) for a, b in pairs]
+    assert gains == sorted(gains, reverse=True)
+    cols[drive] = Column(drive, cols[drive].c, 0)  # no switch: the drive, 6th, has no pairs
+    assert not any(drive in p for p in pairs_to_fit(lin, cols, scored))
 
 
 def test_a_strength_whose_first_order_step_crosses_its_bound_is_fitted_when_its_score_past_it_ranks():

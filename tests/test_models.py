@@ -126,6 +126,24 @@ def test_fit_recovers_law_parameters_started_off_target(brake_clean):
     assert f.rms("x1") < 2e-6
 
 
+def test_a_held_out_window_keeps_the_better_of_its_two_start_fits(brake_cfg):
+    """Session.held_out with ``also`` (start values a nearby model's fit ended at): each window's start fitted from
+    the data's estimate and from there, the lower loss kept; no window worse than either start alone. Off target
+    (mu0 0.40, beta 0.5) the data's start leaves a window of ten in a poorer basin than a start from elsewhere."""
+    rec = simulate(brake_cfg, rate=100.0, seed=3, duration=20.0)
+    s = Session(rec, "sim", brake_cfg, max_windows=30, loss="squares")
+    pr = s.problem(seed_model("brake-2dof"))
+    v = {**pr.builder.base_values, "friction.mu0": 0.40, "friction.beta": 0.5}
+    hw = s.win.select(True)
+    data, ms_data = s.held_out(pr, v)
+    other, ms_other = s.held_out(pr, v, near=-data.start_values)  # from elsewhere: another basin in places
+    both, ms_both = s.held_out(pr, v, also=other.start_values)
+    costs = [pr.window_costs(v, hw, f.start_values) for f in (data, other, both)]
+    assert np.all(costs[2] <= np.minimum(costs[0], costs[1]) * (1 + 1e-6)), costs
+    assert np.any(ms_other["x1"] < 0.8 * ms_data["x1"])  # the case exists (else this test shows nothing)
+    assert np.any(ms_both["x1"] < 0.8 * ms_data["x1"])  # ...and the better start is kept there
+
+
 def test_noise_floor_matches_the_sensor_noise(brake_cfg):
     """On noisy data from the true model, the error is at the floor and the floor is ~ the noise sigma."""
     rec = simulate(brake_cfg, rate=1000.0, seed=4, duration=12.0)
