@@ -20,9 +20,9 @@ import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import (MIN_T, PAIR_TOP, SCREEN_TIE, diagnose, fit_extensions, own_share, pairs_to_fit, passes,
-                                 past_bound, score, to_fit, windows_needed, z_attainable)
+from daq.models.diagnose import MIN_T, diagnose, fit_extensions, own_share, passes, score, windows_needed, z_attainable
 from daq.models.screening import Column, Linearisation, gain_past_bound, predicted_gain
+from daq.models.selection import PAIR_TOP, SCREEN_TIE, further_down, pairs_to_fit, past_bound, to_fit
 from daq.models.session import Session
 from daq.models.spec import remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
@@ -143,6 +143,25 @@ def test_the_screening_cut_does_not_fall_between_near_equal_predictions():
     assert to_fit({k1: 10.0, body: 9.0, rel: 9.0, belt: 8.0, vs: 7.0}, first=False, worth=7.5) == [k1, body, rel, belt]
 
 
+def test_when_no_single_passes_the_phenomena_ranked_next_are_fitted_before_pairs():
+    """further_down: the next FIT_PHENOMENA phenomena by predicted gain, none of those already fitted (in any form),
+    each worth a fit; the aging slider's screening of 2026-11-29 as the case (stick-time fourth at 352)."""
+    belt, lag = Candidate("effect", "belt-speed", "measured"), Candidate("effect", "belt-speed", "lag-ripple")
+    temp, rs = Candidate("effect", "temperature", "linear"), Candidate("effect", "rate-and-state", "aging")
+    sat, log = Candidate("effect", "stick-time", "saturating"), Candidate("effect", "stick-time", "log")
+    vs, fr, mass = (Candidate("effect", "velocity-strengthening"), Candidate("effect", "force-rate"),
+                    Candidate("mechanics", "m_kg"))
+    gains = {belt: 30300.0, lag: 100.0, temp: 24300.0, rs: 23400.0, sat: 352.0, log: 20.0, vs: 331.0, fr: 40.0,
+             mass: 2.0}
+    chosen = to_fit(gains, first=True)
+    assert chosen == [belt, lag, temp, rs]  # stick-time, fourth, is not among them
+    lines: list[str] = []
+    assert further_down(gains, chosen, 3.3, lines.append) == [sat, log, vs, fr]  # both forms of stick-time
+    assert "stick-time (saturating) 352" in lines[0]
+    assert further_down(gains, chosen, 50.0, lines.append) == [sat, log, vs]  # force-rate is not worth a fit there
+    assert further_down(gains, list(gains), 3.3, lines.append) == [] and len(lines) == 2  # nothing left: nothing said
+
+
 def test_a_structural_switch_has_its_pairs_however_its_single_ranks():
     """pairs_to_fit: pairs of different phenomena among the PAIR_TOP best singles (every form fitted of each), and
     a structural switch's phenomenon always, ranked where it may (seen: the belt's measured drive 5th alone, pushed
@@ -175,7 +194,7 @@ def test_a_structural_switch_has_its_pairs_however_its_single_ranks():
 def test_a_strength_whose_first_order_step_crosses_its_bound_is_fitted_when_its_score_past_it_ranks():
     """The score test holds a one-sided strength (stick-time's gain >= 0) at its bound when the linear step would take
     it below: predicted gain 0. Past the bound its score is the two-sided one (the same column, either sign); a
-    candidate whose score past the bound would be among those fitted is fitted too (diagnose.past_bound), one whose
+    candidate whose score past the bound would be among those fitted is fitted too (selection.past_bound), one whose
     step points inward is left to the score test as it was."""
     rng = np.random.default_rng(3)
     r = rng.normal(size=(6, 40))

@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from itertools import combinations
 
 import numpy as np
 from scipy import stats
@@ -35,7 +34,8 @@ from .compare import RINGS_OFF, where_it_lives
 from .extensions import fit_extensions, keep_fits
 from .margins import MIN_EXCESS
 from .report import diagnosis_json
-from .screening import column, gain_past_bound, linearise, predicted_gain
+from .screening import column, linearise, predicted_gain
+from .selection import MIN_GAIN, further_down, pairs_to_fit, past_bound, to_fit
 from .session import Fitted, Session
 from .spec import Model
 from .verdict import NOTHING, Verdict, delivered_fit, judge
@@ -53,18 +53,8 @@ MIN_STEP_FLOOR = 0.25  # ...and lower the error by this share of the noise floor
 MIN_STEP_BASE = 0.05  # ...and by this share of the base model's excess, unless it is a whole noise floor or more
 CAP_MS = 25.0  # per-window mean-square errors are capped at this many times the base model's median
 MAX_STEPS = 3  # effects added at most in one diagnosis
-FIT_PHENOMENA = 3  # per step, the phenomena with the largest predicted gains get full fits...
-SCREEN_TIE = 0.5  # ...and every other phenomenon predicted at least this share of the last of those: the score test
-# ranks loosely, and a cut among near-equal predictions made the conclusion hang on a machine's last bits (decision
-# 28: a spring predicted at 0.63 of the third phenomenon, fitted or not as the cut moved by one, changed what was
-# named). Within 2x of the cut a phenomenon gets its fit, and with it its say as a rival (the margins)
-FORM_SHARE = 0.0  # ...each in every form (the score test cannot choose between forms: they mirror each other:
-# accel-sign keyed to the body with -amp is nearly the relative form with +amp, yet the score test rated
-# them 20x apart on one recording, and the one rated lower was the better fit)
-PAIR_TOP = 3  # when no single passes (or the best leaves much): pairs among this many best singles...
-PAIR_BELOW = 0.8  # ...tried when the best passing single removes less than this share of the excess left...
-PAIR_MARGIN = 0.2  # ...and taken over it when its score is higher by this much
-MIN_GAIN = 3.3  # a predicted cost decrease below this is noise (0.5 chi2_1 at p = 0.01): not fitted
+PAIR_BELOW = 0.8  # pairs (selection.PAIR_TOP) are tried when the best passing single removes less than this share...
+PAIR_MARGIN = 0.2  # ...of the excess left, and a pair is taken over it when its score is higher by this much
 
 
 @dataclass
@@ -213,30 +203,6 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
     return not s.fit_only
 
 
-# --------------------------------------------------------------------------- screening
-
-
-def to_fit(gains: dict[Candidate, float], first: bool, worth: float = MIN_GAIN) -> list[Candidate]:
-    """The best FIT_PHENOMENA phenomena by predicted gain (and any predicted within SCREEN_TIE of the last of
-    them), each in its forms predicted within FORM_SHARE of its best; candidates predicted below ``worth`` are
-    not worth a fit (noise, or too small a share of the excess to pass MIN_STEP); in the first step the two best
-    phenomena are fitted anyway: the prediction is only first order."""
-    by_phen: dict[str, list[tuple[float, Candidate]]] = {}
-    for c, g in gains.items():
-        by_phen.setdefault(c.phenomenon, []).append((g, c))
-    ranked = sorted(by_phen.values(), key=lambda lst: -max(g for g, _ in lst))
-    if len(ranked) > FIT_PHENOMENA:  # the cut is not put between near-equal predictions (SCREEN_TIE)
-        cut = SCREEN_TIE * max(g for g, _ in ranked[FIT_PHENOMENA - 1])
-        ranked = ranked[:FIT_PHENOMENA] + [lst for lst in ranked[FIT_PHENOMENA:] if max(g for g, _ in lst) >= cut]
-    out = []
-    for i, lst in enumerate(ranked):
-        best = max(g for g, _ in lst)
-        if best < worth and not (first and i < 2):
-            continue
-        out += [c for g, c in sorted(lst, key=lambda gc: -gc[0]) if g >= FORM_SHARE * best or g == best]
-    return out
-
-
 # --------------------------------------------------------------------------- correlations
 
 
@@ -326,29 +292,6 @@ def _screen(session: Session, current: Fitted, cands: list[Candidate]):
     return lin, cols, cost, {c: predicted_gain(lin, [cols[c]]) for c in cands}
 
 
-def past_bound(lin, cols: dict, gains: dict[Candidate, float], first: bool, worth: float,
-               chosen: list[Candidate], say) -> list[Candidate]:
-    """Candidates the score test cut only because their first-order step crosses their strength's bound, fitted
-    when their score past the bound would have put them among those fitted (:func:`to_fit`). Asked only when the
-    singles fitted leave the step open (none passes, or the best leaves much of the excess), before pairs: where
-    they explain the record it costs no fit (on `make test`'s diagnoses it fired in 6 tests asked first, +37 CPU-s
-    of 199 in test_diagnose.py, and changed no conclusion).
-
-    Why: the current fit may stand where other parameters make up for the missing effect, and the linear step
-    from there is no guide to the sign. Seen: the aging slider (Dieterich's law, tests/refsim/slider.py) at 4 and
-    16 mm/s judged together; the model without aging fitted at viscous damping 0.30 and k_fall 0.37 (truth 0 and
-    0.30), where stick-time's step pointed below 0 (gain -0.0015) with a score of 18886 past the bound, third of
-    nine. Cut, it was never fitted and nothing was named at 3.8x the floor; fitted, it took the error from 5.39 to
-    1.44 um on a 1.42 um floor, the other parameters back at the truth."""
-    past = {c: gain_past_bound(lin, cols[c]) for c in gains if c not in chosen}
-    past = {c: g for c, g in past.items() if g > gains[c] and g >= worth}  # not the first step's two below worth
-    extra = [c for c in to_fit({**gains, **past}, first, worth) if c in past]
-    if extra:
-        say("fitted past the score test's bound (its step would cross it; a compensating fit may mislead the sign): "
-            + ", ".join(f"{c.label} {past[c]:.3g}" for c in extra))
-    return extra
-
-
 def switch_siblings(cands: list[Candidate], chosen: list[Candidate], cols: dict, scored: list[Scored]
                     ) -> list[Candidate]:
     """The forms left unfitted of a phenomenon whose structural switch passed. A switch that passes says its
@@ -403,8 +346,10 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     if first and current.rms(session.primary) <= (1.0 + MIN_EXCESS) * floor:
         return scored, _unfitted(gains, chosen), None  # no excess to explain (the singles only rank): no pairs either
     ok = _taken(session, base, current, scored, floor, say)
-    if not (ok and ok[0].step_reduction >= PAIR_BELOW):  # a second look before pairs: the bound the step crossed
+    if not (ok and ok[0].step_reduction >= PAIR_BELOW):  # a second look before pairs: the bound the step crossed,
+        # and where no single passed, the phenomena ranked next (selection.py)
         extra = past_bound(lin, cols, gains, first, worth, chosen, say)
+        extra += further_down(gains, chosen + extra, worth, say) if not ok else []
         if extra:
             more = singles(extra)
             chosen += extra
@@ -429,19 +374,6 @@ def _taken(session: Session, base: Fitted, current: Fitted, scored: list[Scored]
             f"{s.error:.3g}): the fit improved, not the effect; not taken")
         ok.remove(s)
     return sorted(ok, key=lambda s: -s.score)
-
-
-def pairs_to_fit(lin, cols: dict, scored: list[Scored]) -> list[tuple[Candidate, Candidate]]:
-    """_pairs' pairs, the best predicted first: of different phenomena, among the PAIR_TOP best by their best form's
-    score and every structural switch fitted (it ranks loosely by its fit alone, as by its screening: seen 2026-11-29,
-    the belt's measured drive 5th alone at 13 %, beside accel-sign (body) 96 %, pushed out by a spring), each phenomenon
-    in every form fitted (a form that explains less alone can explain more beside another effect)."""
-    phen = list(dict.fromkeys(sc.cands[0].phenomenon for sc in scored))[:PAIR_TOP]
-    phen += [p for p in dict.fromkeys(sc.cands[0].phenomenon for sc in scored if cols[sc.cands[0]].switch)
-             if p not in phen]
-    top = [sc.cands[0] for sc in scored if sc.cands[0].phenomenon in phen]
-    pairs = [(a, b) for a, b in combinations(top, 2) if a.phenomenon != b.phenomenon]
-    return sorted(pairs, key=lambda ab: -predicted_gain(lin, [cols[ab[0]], cols[ab[1]]]))
 
 
 def _pairs(session: Session, base: Fitted, current: Fitted, lin, cols: dict, scored: list[Scored],

@@ -150,7 +150,7 @@ def gain_past_bound(lin: Linearisation, col: Column) -> float:
 
     Why it is asked: the fit it linearises may stand where other parameters make up for the missing effect, and
     there the first-order step of the effect can point out of its range while a full fit, moving those parameters
-    back, takes it inward (the aging slider's two records, 4 and 16 mm/s: see diagnose.past_bound)."""
+    back, takes it inward (the aging slider's two records, 4 and 16 mm/s: see selection.past_bound)."""
     if col.switch or not col.sign:
         return 0.0
     base, _ = _reach(lin, [])
