@@ -69,11 +69,12 @@ def past_bound(lin, cols: dict, gains: dict[Candidate, float], first: bool, wort
     return extra
 
 
-def pairs_to_fit(lin, cols: dict, scored: list[Scored]) -> list[tuple[Candidate, Candidate]]:
-    """_pairs' pairs, the best predicted first: of different phenomena, among the PAIR_TOP best by their best form's
-    score and every structural switch fitted (it ranks loosely by its fit alone, as by its screening: seen 2026-11-29,
-    the belt's measured drive 5th alone at 13 %, beside accel-sign (body) 96 %, pushed out by a spring), each phenomenon
-    in every form fitted (a form that explains less alone can explain more beside another effect)."""
+def pairs_to_fit(lin, cols: dict, scored: list) -> list[tuple[Candidate, Candidate]]:
+    """_pairs' pairs, the best predicted first (``scored``: the singles fitted, diagnose.Scored, best first): of
+    different phenomena, among the PAIR_TOP best by their best form's score and every structural switch fitted (it
+    ranks loosely by its fit alone, as by its screening: seen 2026-11-29, the belt's measured drive 5th alone at 13 %,
+    beside accel-sign (body) 96 %, pushed out by a spring), each phenomenon in every form fitted (a form that explains
+    less alone can explain more beside another effect)."""
     phen = list(dict.fromkeys(sc.cands[0].phenomenon for sc in scored))[:PAIR_TOP]
     phen += [p for p in dict.fromkeys(sc.cands[0].phenomenon for sc in scored if cols[sc.cands[0]].switch)
              if p not in phen]
