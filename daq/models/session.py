@@ -322,9 +322,7 @@ class Session:
         hides; re-fit every fit window's start values from the data (parameters fixed, as for held-out windows)
         and keep, per window, the better of the two (the loss's sample weights settled there)."""
         again = pr.fit_starts(res.values, fw, max_iter=25)
-        e_joint = pr.window_costs(res.values, fw, res.start_values)
-        e_again = pr.window_costs(res.values, fw, again.start_values)
-        res.start_values = np.where((e_again < e_joint)[:, None], again.start_values, res.start_values)
+        res.start_values = pr.better_starts(res.values, fw, res.start_values, again.start_values)
         pr.settle_weights(res.values, fw, res.start_values)
 
     def effect_starts(self, model: Model, values: dict[str, float], bounds: dict) -> dict[str, float]:
@@ -358,9 +356,7 @@ class Session:
         held = pr.fit_starts(values, hw, max_iter=25, near=near)
         if also is not None and also.shape == held.start_values.shape and hw.size:
             other = pr.fit_starts(values, hw, max_iter=25, near=also)
-            better = pr.window_costs(values, hw, other.start_values) < pr.window_costs(values, hw, held.start_values)
-            if better.any():
-                held.start_values = np.where(better[:, None], other.start_values, held.start_values)
+            held.start_values = pr.better_starts(values, hw, held.start_values, other.start_values)
         return held, pr.window_errors(values, hw, held.start_values)
 
     def _fit_from(self, pr: Problem, starts: list, free: list[str], bounds: dict, fw: np.ndarray,

@@ -169,6 +169,14 @@ class Problem:
         """The loss per window, without the windows' weights."""
         return robust.evaluate(self.scaled(values, windows, start_values), self.loss)[0]
 
+    def better_starts(self, values: dict[str, float], windows: np.ndarray, kept: np.ndarray,
+                      other: np.ndarray) -> np.ndarray:
+        """Per window, ``other``'s start values where their loss is strictly lower than ``kept``'s, else ``kept``'s:
+        two start fits of the same windows, the better of each window kept (Session._better_starts, Session.held_out
+        say why each fits twice)."""
+        better = self.window_costs(values, windows, other) < self.window_costs(values, windows, kept)
+        return np.where(better[:, None], other, kept)
+
     def settle_weights(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray) -> None:
         """The loss's sample weights of ``windows`` at these values (after a fit's start values were exchanged)."""
         z = self.scaled(values, windows, start_values)
