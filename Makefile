@@ -7,6 +7,7 @@ BIN := $(VENV)/bin
 .PHONY: demo test acceptance bench env clean system-packages
 
 demo: $(VENV)/.installed
+	$(BIN)/daq warm
 	$(BIN)/daq demo
 
 # two workers (pytest-xdist), a file each at a time in conftest.py's order (longest files first, the real-time files
@@ -14,10 +15,13 @@ demo: $(VENV)/.installed
 # change; 22-26 min on the one it had earlier that day, at half its speed).
 # `$(BIN)/python -m pytest` alone runs it serially, `-m "not slow"` quickly.
 PYTEST_WORKERS ?= 2
+# `daq warm` first: the kernels compiled once into the cache, not by both workers and their pools side by side.
 test: $(VENV)/.installed system-packages
+	$(BIN)/daq warm
 	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=25
 
 acceptance: $(VENV)/.installed  # the long acceptance runs (tests/long, minutes each), outside `make test`
+	$(BIN)/daq warm
 	$(BIN)/python -m pytest tests/long
 
 system-packages:  # Octave + h5dump (tests/test_old_readers.py), Chromium + chromedriver (tests/test_web.py); only what is missing

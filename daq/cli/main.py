@@ -14,9 +14,9 @@ import sys
 
 from daq.errors import InputError
 
-from . import analyses, archive, bench, daemon, data, demo, models, propose, rig, sim, soak
+from . import analyses, archive, bench, daemon, data, demo, models, propose, rig, sim, soak, warm
 
-GROUPS = (rig, sim, data, bench, daemon, soak, models, propose, archive, analyses, demo)
+GROUPS = (rig, sim, data, bench, daemon, soak, models, propose, archive, analyses, demo, warm)
 
 
 def build_parser() -> argparse.ArgumentParser:
