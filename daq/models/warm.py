@@ -6,8 +6,8 @@ it, and where several processes start at once (the suite's two workers and their
 simulated bench and estimator, Dask workers) each compiles the same kernels side by side, racing on the cache files
 (numba#4807). Compiled once here, in one process, every later process loads them. Measured on the 2-core machine,
 2026-11-29: 24 s with an empty cache (the three rigs' integrators and contact tails, the estimator's filters and
-inverse dynamics, the rate-and-state slider), 2 s with a full one. A user effect is compiled in each process that
-fits it (daq/models/user_effects.py) and is not warmed here.
+inverse dynamics, the rate-and-state slider), 2 s with a full one (decision 48). A user effect is compiled in each
+process that fits it (daq/models/user_effects.py) and is not warmed here.
 """
 
 from __future__ import annotations
