@@ -20,11 +20,13 @@ import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import MIN_T, diagnose, fit_extensions, own_share, passes, score, windows_needed, z_attainable
+from daq.models.diagnose import (MIN_T, diagnose, fit_extensions, own_share, passes, score, users_fit, windows_needed,
+                                  z_attainable)
 from daq.models.screening import Column, Linearisation, gain_past_bound, predicted_gain
 from daq.models.selection import PAIR_TOP, SCREEN_TIE, further_down, pairs_to_fit, past_bound, to_fit
 from daq.models.session import Session
 from daq.models.spec import remove_effect, save_model, seed_model
+from daq.models.verdict import delivered_fit
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
 
@@ -239,6 +241,26 @@ def test_a_missing_normal_load_is_fitted_however_the_score_test_ranks_it():
     j = d.as_json(s)
     assert j["named"] == ["normal-load"] and j["undecided"] == [], d.summary
     assert j["final_reduction"] >= 0.9
+
+
+def test_a_short_single_is_judged_on_the_fit_the_user_will_get(brake_cfg):
+    """diagnose.users_fit: a passing single whose own fit stopped short (here cut at 2 iterations from the base fit)
+    is fitted as `model add` + `compare` will fit it; that fit's score replaces the short one, and it is the very fit
+    the promise then reads (delivered_fit returns it from the session: no second fit)."""
+    rec = simulate(brake_cfg, effects=[parse_effect("accel-sign")], rate=100.0, seed=3, duration=20.0)
+    s = Session(rec, "sim", brake_cfg, max_windows=40)
+    model = seed_model("brake-2dof")
+    base = s.fit(model)
+    floor = s.noise_floor(base)[s.primary]
+    cand = Candidate("effect", "accel-sign", "relative")
+    short = score(base, base, s.fit(cand.apply(model), warm=base, max_iter=2), (cand,), floor, s)
+    again = users_fit(s, model, base, base, short, (), floor, lambda msg: None)
+    assert again is not None and again.cands == (cand,) and passes(again), short.step_reduction
+    assert again.step_reduction > short.step_reduction and again.step_reduction >= 0.8, (short.step_reduction,
+                                                                                        again.step_reduction)
+    assert delivered_fit(s, model, [cand]) is again.fitted
+    # a single the user's path fits no better is left as it was
+    assert users_fit(s, model, base, base, again, (), floor, lambda msg: None) is None
 
 
 def test_a_candidate_does_not_take_the_credit_for_iterations_its_base_fit_lacked(brake_cfg):

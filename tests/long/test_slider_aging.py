@@ -8,6 +8,8 @@ the last `compare` (cut by a 40-minute timeout, run by hand on the test's files)
 98 % of the excess. Before that rule the diagnosis had not ended in 24 min (pairs of the three first). Passed start
 to end the same day at 83a1b33 in 2562 s, the first 23 min of it at nice 15 behind the recovery table; the rest
 (the singles, the pairs, the promise, the last compare) 21 min on the then quiet machine: about 25-30 min in all.
+Since the step judges a short single on the fit the user will get (diagnose.users_fit, decision 15's note): stick-time
+(log) 98 % in the step where its own fit gave 76 %, no pairs, the same conclusion; 953 s start to end, quiet machine.
 
 The record: a slider (50 g) pulled over a fixed track through a 200 N/m spring by a driver stepping between 4 and
 2 mm/s every 10 s (a velocity-stepping test, 90 s at 500 Hz), written by tests/refsim/slider.py (lab frame, scipy,
