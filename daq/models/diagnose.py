@@ -377,7 +377,7 @@ def users_fit(session: Session, model: Model, base: Fitted, current: Fitted, bes
     where that is better and it passes and earns its step (own_share) as the diagnosis's own fit did, else None.
     Why: the diagnosis fits a single from the current fit, whose other values have compensated for what is missing;
     the user's path starts from the file's values and can reach a better basin. Seen on the aging slider (issue 14's
-    record): stick-time (log) 77 % of the excess in the diagnosis's fit, 98 % on the user's path; below PAIR_BELOW
+    record): stick-time (log) 76-77 % of the excess in the diagnosis's fit, 98 % on the user's path; below PAIR_BELOW
     the step fitted 12 pairs it did not need, and the promise (98 %) was not the share the step had judged. Where the
     single is then named, the promise is this same fit (Session.fit keeps a model's own fit), so the refit costs
     nothing then; only a short single that pairs then beat costs one fit more."""

@@ -20,11 +20,12 @@ import numpy as np
 from daq.config import load_rig
 from daq.estimation.core import FrictionEstimator
 from daq.estimation.rigmodels import rig_model
-from daq.models.candidates import candidates_for
-from daq.models.session import Session
-from daq.models.spec import seed_model
 from daq.physics import rsf
 from daq.sim.run import simulate
+
+from .candidates import candidates_for
+from .session import Session
+from .spec import seed_model
 
 RIGS = ("brake-2dof", "drum-pendulum", "belt-ndof")
 WARM_S = 2.0  # seconds of a simulated record (at 100 Hz) each rig's kernels are run on
