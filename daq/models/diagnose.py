@@ -303,13 +303,13 @@ def switch_siblings(cands: list[Candidate], chosen: list[Candidate], cols: dict,
 
 
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
-          first: bool, cold: dict[str, float], seen: dict | None = None,
-          prefix: tuple[Candidate, ...] = (), model: Model | None = None
-          ) -> tuple[list[Scored], list[Screened], Scored | None]:
+          first: bool, model: Model, seen: dict | None = None,
+          prefix: tuple[Candidate, ...] = ()) -> tuple[list[Scored], list[Screened], Scored | None]:
     """One forward-selection step: screen, fit the most promising, pairs if no single passes. Every fit is kept in
     ``seen`` (by the set of candidates the base model was extended by; ``prefix``: the current model's). ``model``:
-    the model file the diagnosis started from (users_fit fits a short single from it)."""
+    the model file the diagnosis started from (its values are every fit's cold start; users_fit fits from it)."""
     seen = {} if seen is None else seen
+    cold = {n: p.value for n, p in model.params().items()}
     cands = candidates_for(current.model)
     if not cands:
         return [], [], None
@@ -358,7 +358,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
             scored = sorted(scored + more, key=lambda s: -s.score)
             ok = sorted(ok + _taken(session, base, current, more, floor, say), key=lambda s: -s.score)
     screened = _unfitted(gains, chosen)
-    if ok and ok[0].step_reduction < PAIR_BELOW and model is not None:
+    if ok and ok[0].step_reduction < PAIR_BELOW:
         better = users_fit(session, model, base, current, ok[0], prefix, floor, say)
         if better is not None:
             keep_fits(seen, prefix, {better.cands: better.fitted})
@@ -479,9 +479,8 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     entered: dict[Candidate, list[Scored]] = {}  # each member: the singles of the step it entered in (its rivals)
     for k in range(max_steps):
         prefix = tuple(c for s in sequence for c in s.cands)
-        scored, screened, accepted = _step(session, base, current, floors, say, workers, first=(k == 0),
-                                           cold={n: p.value for n, p in model.params().items()}, seen=seen,
-                                           prefix=prefix, model=model)
+        scored, screened, accepted = _step(session, base, current, floors, say, workers, first=(k == 0), model=model,
+                                           seen=seen, prefix=prefix)
         if k == 0:
             first_scored, first_screened = scored, screened
             say(f"noise floor {floors[primary]:.4g} {unit}")
