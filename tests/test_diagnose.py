@@ -300,6 +300,23 @@ def test_the_fewest_held_out_windows_that_can_pass_the_consistency_gate():
         assert z_attainable(k) == pytest.approx(stats.norm.isf(p), rel=1e-9)
 
 
+def test_a_record_whose_every_window_got_worse_weighs_by_its_change_not_minus_infinity():
+    """Every window worse gives Wilcoxon's p = 1 exactly, whose z is -inf; in several records' combined z that
+    outweighed any other record (the closed-loop demo, 2026-11-29: a lag at constant speed, 12 windows 0.6 noise
+    variances worse each, sank the decelerating run's z 3.67 and the lag was not taken). The z comes from the other
+    tail instead: the mirror image of the same windows improving, so a record weighs by the change it carries."""
+    from daq.models.diagnose import consistency
+
+    worse = -np.linspace(0.5, 0.7, 12)
+    assert consistency(worse) == pytest.approx(-consistency(-worse), rel=1e-12) == pytest.approx(-z_attainable(12))
+    gained = np.linspace(50.0, 200.0, 13)
+    record = np.repeat([0, 1], [12, 13])
+    both = consistency(np.concatenate([worse, gained]), record)
+    w = np.array([np.abs(worse).sum(), gained.sum()])
+    assert both == pytest.approx(w @ [-z_attainable(12), z_attainable(13)] / np.linalg.norm(w), rel=1e-12)
+    assert both >= MIN_T and consistency(worse) < 0 < consistency(gained)
+
+
 @pytest.mark.slow
 def test_serial_and_parallel_fits_are_the_same_fits(brake_cfg, monkeypatch):
     """Issue 25: 'one worker instead of two' may not change a conclusion, so it may not change a fit: the pool's
