@@ -81,14 +81,14 @@ def bins(t: np.ndarray, corners: np.ndarray) -> np.ndarray:
     k = np.clip(np.searchsorted(corners, t), 1, corners.size - 1)
     dist = np.minimum(np.abs(t - corners[k - 1]), np.abs(corners[k] - t)) if corners.size > 1 else t - t[0]
     width = np.maximum(BIN_FRACTION * dist, dt)
-    starts = [0]
-    while True:
-        i = starts[-1]
-        j = int(np.searchsorted(t, t[i] + width[i] * (1 - 1e-9), side="left"))
-        j = max(j, i + 1)
-        if j >= t.size:
-            return np.asarray(starts)
-        starts.append(j)
+    # each sample's next bin start, were a bin to start there, all at once (the same arithmetic per element): one
+    # searchsorted per bin, in a loop, was 18 % of the coverage test's CPU
+    nxt = np.maximum(np.searchsorted(t, t + width * (1 - 1e-9), side="left"), np.arange(1, t.size + 1)).tolist()
+    starts, i = [], 0
+    while i < t.size:
+        starts.append(i)
+        i = nxt[i]
+    return np.asarray(starts)
 
 
 def start_values(ev: Event, t: np.ndarray, mu: np.ndarray, travel: np.ndarray, k_per_m: float | None) -> np.ndarray:

@@ -81,10 +81,35 @@ def _dln_theta(s: RsfSlider, v: float, ln_theta: float) -> float:
 def record(s: RsfSlider, rt: np.ndarray, rv: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """(t, mu) sampled at rate_hz from steady sliding at the programme's first speed."""
     t_out = np.arange(0.0, rt[-1], 1.0 / rate_hz)
+    pieces_t, pieces_mu = [], []
+    for lo, hi, dense in _solved(s, rt, rv):
+        sel = (t_out >= lo) & (t_out < hi)
+        if sel.any():
+            z = dense(t_out[sel])
+            pieces_t.append(t_out[sel])
+            pieces_mu.append(z[0] if s.m == 0.0 else s.k * z[0] / s.n)
+    return np.concatenate(pieces_t), np.concatenate(pieces_mu)
+
+
+_SOLVED: dict[tuple, list] = {}
+
+
+def _solved(s: RsfSlider, rt: np.ndarray, rv: np.ndarray) -> list[tuple[float, float, object]]:
+    """The programme's solution as (start, end, dense output) per piece, solved once per slider and programme in a
+    process: the solve does not depend on the rate it is sampled at (the coverage test samples each at two rates)."""
+    key = (tuple(vars(s).items()), np.asarray(rt, dtype=float).tobytes(), np.asarray(rv, dtype=float).tobytes())
+    if key not in _SOLVED:
+        if len(_SOLVED) >= 8:
+            _SOLVED.pop(next(iter(_SOLVED)))
+        _SOLVED[key] = _solve(s, rt, rv)
+    return _SOLVED[key]
+
+
+def _solve(s: RsfSlider, rt: np.ndarray, rv: np.ndarray) -> list[tuple[float, float, object]]:
     v_start = rv[0]
     ln_theta0 = math.log(s.dc / v_start)
     mu_start = _friction(s, v_start, ln_theta0)
-    pieces_t, pieces_mu = [], []
+    pieces = []
     if s.m > 0.0:
         # state: (spring extension e = x_lp - x, ln v, ln theta); the slider never stops (v > 0 under RSF)
         def rhs(t, y):
@@ -108,10 +133,6 @@ def record(s: RsfSlider, rt: np.ndarray, rv: np.ndarray, rate_hz: float) -> tupl
         sol = solve_ivp(rhs, (lo, hi), y, method=("Radau" if s.m > 0.0 else "LSODA"), rtol=1e-10, atol=1e-13, dense_output=True)
         if not sol.success:
             raise RuntimeError(sol.message)
-        sel = (t_out >= lo) & (t_out < hi)
-        if sel.any():
-            z = sol.sol(t_out[sel])
-            pieces_t.append(t_out[sel])
-            pieces_mu.append(z[0] if s.m == 0.0 else s.k * z[0] / s.n)
+        pieces.append((lo, hi, sol.sol))
         y = sol.y[:, -1]
-    return np.concatenate(pieces_t), np.concatenate(pieces_mu)
+    return pieces
