@@ -2,7 +2,7 @@
 
 Exports the errors every layer raises (``DaqError``, ``InputError``); the rest is in the subpackages. Here too, as
 the one piece every package imports first: ``lazy_exports``, how each package says what it exports (issue 30), and
-the one BLAS kernel every machine computes with (``pin_blas_kernel``).
+the one BLAS kernel set and thread count every machine computes with (``pin_blas_kernel``, ``pin_blas_threads``).
 """
 
 from __future__ import annotations
@@ -90,4 +90,33 @@ def pin_blas_kernel(cpuinfo: str = "/proc/cpuinfo") -> str | None:
     return BLAS_KERNEL
 
 
+BLAS_THREADS = "1"
+# what OpenBLAS reads for its thread count, in its order: a user who names any of them has chosen
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def pin_blas_threads() -> str | None:
+    """One OpenBLAS thread in each of our processes (``OPENBLAS_NUM_THREADS`` = BLAS_THREADS), unless the environment
+    names a count. Returns the count in force, or None where numpy was loaded first (OpenBLAS has started its threads).
+
+    Why, first, the same numbers on every machine: OpenBLAS splits some operations over its threads, one per core by
+    default, and a split changes how sums round. The rate-and-state coverage test (`tests/rsf_coverage.py`, 80
+    fits a cell) gave other estimates with one thread than with two: every cell's mean biases moved (in the 2nd to
+    6th digit) and eight coverage fractions of four cells by one event in 80. More cores would split otherwise again.
+    Second, the parallelism is ours, a process a core (the fits' pools, Dask's workers, the daemon's processes): BLAS
+    threads on top only spin beside them. Measured 2026-11-29 on the 2-core machine of the suite, `rsf_coverage`'s
+    six-seed run: alone 8.2 s either way but 10.1 CPU-s with two threads against 7.8 with one; two runs at once
+    13.0 s each with two threads, 8.0-8.2 s with one; in `make test` the rate-and-state file took 81 -> 59 CPU-s.
+    The diagnoses' matrices are too small for OpenBLAS to split: a diagnosis gave the same JSON to the bit either
+    way. Decision record: docs/decisions/0049-one-blas-thread.md."""
+    for name in BLAS_THREAD_VARIABLES:
+        if name in os.environ:
+            return os.environ[name]
+    if "numpy" in sys.modules:
+        return None
+    os.environ["OPENBLAS_NUM_THREADS"] = BLAS_THREADS
+    return BLAS_THREADS
+
+
 pin_blas_kernel()
+pin_blas_threads()

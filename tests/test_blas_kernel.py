@@ -1,5 +1,6 @@
 """One BLAS kernel set on every machine (daq.pin_blas_kernel): OpenBLAS picks kernels by CPU and they round
-differently, and the same proposal came out differently on two machines until both used the same set."""
+differently, and the same proposal came out differently on two machines until both used the same set. One BLAS
+thread (daq.pin_blas_threads): OpenBLAS splits work by its thread count, one a core, and a split rounds otherwise."""
 
 from __future__ import annotations
 
@@ -59,3 +60,37 @@ def test_the_rule_reads_the_cpu_flags_and_leaves_the_rest_to_openblas(tmp_path):
             "print(daq.pin_blas_kernel(), 'OPENBLAS_CORETYPE' in os.environ)")
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.split() == ["None",
                                                                                                          "False"]
+
+
+THREADS = """
+import ctypes, glob, os, sys
+if sys.argv[1] == 'daq':
+    import daq
+import numpy, scipy.linalg
+def count(package, lib, symbol):
+    path = glob.glob(os.path.join(os.path.dirname(package.__file__) + '.libs', lib))[0]
+    return getattr(ctypes.CDLL(path), symbol)()
+print(count(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_num_threads64_'),
+      count(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_num_threads'), os.environ.get('OPENBLAS_NUM_THREADS'))
+"""
+
+
+def blas_threads(first: str, **env: str) -> list[str]:
+    """numpy's and scipy's OpenBLAS thread counts in a fresh interpreter, and OPENBLAS_NUM_THREADS there (the suite's
+    own process imported daq: its environment holds the pinned count, which a user's shell would not)."""
+    clean = {k: v for k, v in os.environ.items() if k not in daq.BLAS_THREAD_VARIABLES} | env
+    r = subprocess.run([sys.executable, "-c", THREADS, first], capture_output=True, text=True, env=clean)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.split()
+
+
+def test_numpy_and_scipy_compute_on_one_blas_thread_unless_the_user_names_a_count():
+    assert blas_threads("daq") == ["1", "1", daq.BLAS_THREADS]  # and our processes' children inherit it
+    assert blas_threads("daq", OPENBLAS_NUM_THREADS="2") == ["2", "2", "2"]  # the user's count, kept
+    assert blas_threads("daq", OMP_NUM_THREADS="2") == ["2", "2", "None"]  # OpenBLAS reads this one too
+    # numpy loaded first: OpenBLAS has chosen (a thread a core), said as None and the environment left alone
+    assert blas_threads("numpy")[2] == "None"
+    code = "import numpy, daq; print(daq.pin_blas_threads())"
+    clean = {k: v for k, v in os.environ.items() if k not in daq.BLAS_THREAD_VARIABLES}
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=clean).stdout.split() == [
+        "None"]
