@@ -10,27 +10,44 @@ import sys
 
 import daq
 
-# the kernel set numpy's and scipy's OpenBLAS loaded in a fresh interpreter, with or without importing daq first
-CORENAMES = """
+# what numpy's and scipy's OpenBLAS loaded in a fresh interpreter, with or without importing daq first: their kernel
+# sets, their thread counts, and OPENBLAS_NUM_THREADS there
+OPENBLAS = """
 import ctypes, glob, os, sys
 if sys.argv[1] == 'daq':
     import daq
 import numpy, scipy.linalg
-def name(package, lib, symbol):
+def call(package, lib, symbol, restype=ctypes.c_int):
     path = glob.glob(os.path.join(os.path.dirname(package.__file__) + '.libs', lib))[0]
     fn = getattr(ctypes.CDLL(path), symbol)
-    fn.restype = ctypes.c_char_p
-    return fn().decode()
-print(name(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_corename64_'),
-      name(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_corename'))
+    fn.restype = restype
+    out = fn()
+    return out.decode() if isinstance(out, bytes) else out
+print(call(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_corename64_', ctypes.c_char_p),
+      call(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_corename', ctypes.c_char_p),
+      call(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_num_threads64_'),
+      call(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_num_threads'), os.environ.get('OPENBLAS_NUM_THREADS'))
 """
 
 
-def corenames(first: str, **env: str) -> list[str]:
-    clean = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"} | env
-    r = subprocess.run([sys.executable, "-c", CORENAMES, first], capture_output=True, text=True, env=clean)
+def users_shell(**env: str) -> dict[str, str]:
+    """This environment without what daq sets (the suite's own process imported daq), as a user's shell has it."""
+    return {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE", *daq.BLAS_THREAD_VARIABLES)} | env
+
+
+def openblas(first: str, **env: str) -> list[str]:
+    r = subprocess.run([sys.executable, "-c", OPENBLAS, first], capture_output=True, text=True, env=users_shell(**env))
     assert r.returncode == 0, r.stderr
     return r.stdout.split()
+
+
+def corenames(first: str, **env: str) -> list[str]:
+    return openblas(first, **env)[:2]
+
+
+def blas_threads(first: str, **env: str) -> list[str]:
+    """numpy's and scipy's OpenBLAS thread counts, and OPENBLAS_NUM_THREADS."""
+    return openblas(first, **env)[2:]
 
 
 def test_numpy_and_scipy_compute_with_the_pinned_kernels_wherever_the_cpu_runs_them():
@@ -62,28 +79,6 @@ def test_the_rule_reads_the_cpu_flags_and_leaves_the_rest_to_openblas(tmp_path):
                                                                                                          "False"]
 
 
-THREADS = """
-import ctypes, glob, os, sys
-if sys.argv[1] == 'daq':
-    import daq
-import numpy, scipy.linalg
-def count(package, lib, symbol):
-    path = glob.glob(os.path.join(os.path.dirname(package.__file__) + '.libs', lib))[0]
-    return getattr(ctypes.CDLL(path), symbol)()
-print(count(numpy, 'libscipy_openblas64_*.so', 'scipy_openblas_get_num_threads64_'),
-      count(scipy, 'libscipy_openblas-*.so', 'scipy_openblas_get_num_threads'), os.environ.get('OPENBLAS_NUM_THREADS'))
-"""
-
-
-def blas_threads(first: str, **env: str) -> list[str]:
-    """numpy's and scipy's OpenBLAS thread counts in a fresh interpreter, and OPENBLAS_NUM_THREADS there (the suite's
-    own process imported daq: its environment holds the pinned count, which a user's shell would not)."""
-    clean = {k: v for k, v in os.environ.items() if k not in daq.BLAS_THREAD_VARIABLES} | env
-    r = subprocess.run([sys.executable, "-c", THREADS, first], capture_output=True, text=True, env=clean)
-    assert r.returncode == 0, r.stderr
-    return r.stdout.split()
-
-
 def test_numpy_and_scipy_compute_on_one_blas_thread_unless_the_user_names_a_count():
     assert blas_threads("daq") == ["1", "1", daq.BLAS_THREADS]  # and our processes' children inherit it
     assert blas_threads("daq", OPENBLAS_NUM_THREADS="2") == ["2", "2", "2"]  # the user's count, kept
@@ -91,6 +86,5 @@ def test_numpy_and_scipy_compute_on_one_blas_thread_unless_the_user_names_a_coun
     # numpy loaded first: OpenBLAS has chosen (a thread a core), said as None and the environment left alone
     assert blas_threads("numpy")[2] == "None"
     code = "import numpy, daq; print(daq.pin_blas_threads())"
-    clean = {k: v for k, v in os.environ.items() if k not in daq.BLAS_THREAD_VARIABLES}
-    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=clean).stdout.split() == [
-        "None"]
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=users_shell()).stdout.split() == ["None"]
