@@ -6,6 +6,9 @@ that also keep a builtin base (``class MotorUnavailable(DaqError, ConnectionErro
 so for the ``except ConnectionError`` clauses that existed before the base did.
 
 ``InputError`` is bad input, so every command can report it as one line naming file and field.
+``NumericalFailure`` is good input that a computation could not carry through (linear algebra that does not
+converge, a simulation that is not finite): a fit that ends this way is reported as failed, with its reason, and
+whatever asked for it goes on where it can (decision 50).
 """
 
 from __future__ import annotations
@@ -29,6 +32,14 @@ class InputError(DaqError):
         self.field = field
         self.message = message
         super().__init__(f"{source}: {field}: {message}")
+
+
+class NumericalFailure(DaqError):
+    """A fit or simulation that could not be carried through on this input; ``str(err)`` says where and why.
+
+    A diagnosis marks the candidate whose fit raised it as failed and goes on; a command whose own fit raised it
+    prints it on one line and exits with status 2, as for bad input.
+    """
 
 
 def read_text(path) -> str:

@@ -91,6 +91,38 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
                                 f"{best * 1e3:.1f} ms, best of 3 (`daq bench sim`)")
 
 
+def pytest_configure(config):
+    """Every `daq` command the suite runs (in its processes, and in the CLI subprocesses and daemons they start) logs
+    an exception it ends in to one file (daq.cli.main.TRACEBACK_LOG), set here by the process that reports, before
+    xdist starts its workers (they inherit it)."""
+    from daq.cli.main import TRACEBACK_LOG
+
+    if not hasattr(config, "workerinput") and not os.environ.get(TRACEBACK_LOG):
+        fd, path = tempfile.mkstemp(prefix="daq-tracebacks-", suffix=".jsonl")
+        os.close(fd)
+        os.environ[TRACEBACK_LOG] = path
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """No command of the suite ended in a traceback (issue 59): a LinAlgError, a FloatingPointError or a ValueError from
+    a diagnosis, a comparison or a proposal is a numerical failure the product must contain and report, and any other
+    exception a command ended in is a defect too, even where its test looked only at the exit status. The run fails
+    with the tracebacks printed. Said by the process that reports, after every worker has ended."""
+    from daq.cli.main import TRACEBACK_LOG
+    from helpers import logged_tracebacks
+
+    if hasattr(session.config, "workerinput") or not os.environ.get(TRACEBACK_LOG):
+        return
+    found = logged_tracebacks(Path(os.environ[TRACEBACK_LOG]))
+    if found:
+        tr = session.config.pluginmanager.get_plugin("terminalreporter")
+        for e in found:
+            tr.write_line(f"daq {' '.join(e['argv'])} ended in {e['type']}:\n{e['traceback']}", red=True)
+        tr.write_line(f"{len(found)} daq command(s) ended in a traceback (tests/conftest.py: pytest_sessionfinish)",
+                      red=True)
+        session.exitstatus = 1
+
+
 def pytest_sessionstart(session):
     """Refuse to run, in one line, when an archive catalog would claim the tests' temporary files. A recording finds
     its catalog in its folder or any parent (daq.io.archive.find_catalog, or $DAQ_ARCHIVE), so a catalog left in

@@ -247,3 +247,17 @@ def brake_on_serial_stream():
     data["instruments"]["can"]["enabled"] = False
     data["instruments"]["laser_serial"]["enabled"] = True
     return parse_rig(data, "test")
+
+
+def logged_tracebacks(path: Path) -> list[dict]:
+    """The exceptions `daq` commands ended in, as daq.cli.main logged them to ``path`` (TRACEBACK_LOG), one dict each
+    (command, argv, type, traceback); a line cut short by a killed process is skipped."""
+    out = []
+    if not path.exists():
+        return out
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return out

@@ -86,6 +86,10 @@ SINGLES = [
     ("vel-strength", "vel-strength:D=0.8", ("velocity-strengthening",)),
     ("bearing", "bearing:torque=0.003", ("bearing-friction",)),
 ]
+# a static peak that ages on a *creep clock* (issue 59): refsim's stick-creep, log growth on a clock that runs at a
+# Lorentzian creep indicator of the rig's own creep speed (1 cm/s, its config's v_stick) and is wiped out over 1 mm of
+# slip; the catalog's log form ages on Dieterich's state or its stick clock. Three strengths
+CREEP = [(f"stick-creep b={b}", f"stick-creep:b={b},v_c=0.01,L_r=0.001", ("stick-time",)) for b in (0.15, 0.3, 0.6)]
 PAIRS = [
     ("accel-body+belt-drive", ("accel-body:amp=0.12", "belt-drive:tau=0.15,ripple=0.05,wavelength=0.9"),
      ("accel-sign", "belt-speed")),
@@ -137,6 +141,8 @@ def cases(rates: list[float], quick: bool = False, belt: bool = False) -> list[C
         for ramp in ramps:
             for name, eff, exp in SINGLES:
                 out.append(Case(f"{name}/{ramp}", "brake-2dof", (eff,), exp, ramp, rate))
+        for name, eff, exp in CREEP:
+            out.append(Case(name, "brake-2dof", (eff,), exp, "A", rate))
         for name, effs, exp in PAIRS:
             out.append(Case(name, "brake-2dof", effs, exp, "A", rate, kind="pair"))
         out.append(Case("null", "brake-2dof", (), (), "A", rate, kind="null"))

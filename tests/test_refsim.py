@@ -232,6 +232,7 @@ ZERO = {name: f"{name}:" + ",".join(f"{k}=0" for k in keys) for name, (keys, _) 
 # magnitude 0 with the other keys far from their defaults
 ZERO_SHAPED = {
     "stick-log": "stick-log:b=0,theta=0.5,Dc=3e-4",
+    "stick-creep": "stick-creep:b=0,theta=0.5,v_c=3e-4,L_r=2e-3",
     "accel-body": "accel-body:amp=0,a0=0.3,tau_a=0.01",
     "arrhenius": "arrhenius:E=0,T_ref_C=40",
     "belt-drive": "belt-drive:tau=0,ripple=0,wavelength=0.2,zeta=0.3,h2=1",
@@ -242,10 +243,10 @@ ZERO_SHAPED = {
     "stiffness": "stiffness:k1=0,k2=0,k3=0,k=0",
 }
 ON = {
-    "brake-2dof": {"stick-log": "stick-log:b=0.1", "accel-body": "accel-body:amp=-0.05", "arrhenius": "arrhenius:E=3000",
+    "brake-2dof": {"stick-log": "stick-log:b=0.1", "stick-creep": "stick-creep:b=0.1", "accel-body": "accel-body:amp=-0.05", "arrhenius": "arrhenius:E=3000",
                    "belt-drive": "belt-drive", "force-rate-pow": "force-rate-pow", "vel-strength": "vel-strength:D=0.5",
                    "bearing": "bearing:torque=0.003", "waviness": "waviness", "stiffness": "stiffness:k1=0.04"},
-    "drum-pendulum": {"stick-log": "stick-log:b=0.2", "accel-body": "accel-body:amp=0.1", "arrhenius": "arrhenius:E=3000",
+    "drum-pendulum": {"stick-log": "stick-log:b=0.2", "stick-creep": "stick-creep:b=0.2,v_c=1e-4,L_r=1e-4", "accel-body": "accel-body:amp=0.1", "arrhenius": "arrhenius:E=3000",
                       "belt-drive": "belt-drive", "force-rate-pow": "force-rate-pow:g=0.3",
                       "vel-strength": "vel-strength:D=0.5", "bearing": "bearing:mu1=0.05", "waviness": "waviness:w=0.05",
                       "stiffness": "stiffness:k=0.04"},

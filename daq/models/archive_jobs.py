@@ -43,13 +43,14 @@ import distributed
 from distributed import Client, LocalCluster, as_completed
 from pydantic import Field
 
-from daq.errors import DaqError, InputError
+from daq.errors import DaqError, InputError, NumericalFailure
 from daq.io.archive import Catalog, CatalogRow, file_hash
 from daq.sim.run import simulate
 from daq.strict import Strict
 
 from .compare import compare
 from .diagnose import diagnose
+from .linalg import FAILURES
 from .session import Fitted, Session
 from .spec import Model, dumps, rig_config_for
 
@@ -212,6 +213,8 @@ def analyse_recording(path: str, digest: str, model: Model, kind: str = KIND) ->
         if file_hash(path) != digest:
             raise InputError(path, "(file)", "changed since it was catalogued: `daq archive scan` it again")
         result = ANALYSES[kind](Session.open(path, model), model)
+    except NumericalFailure as exc:  # good input a fit could not carry through: stored as failed, with why
+        failure = f"{path}: ({kind}): the fit failed: {exc}"
     except (DaqError, OSError) as exc:
         failure = str(exc) if isinstance(exc, DaqError) else f"{path}: (file): {exc}"
     except Exception as exc:  # noqa: BLE001 - a numerical failure on one record is reported, the job goes on
@@ -232,7 +235,10 @@ def warm_numba(model: Model) -> None:
     any worker starts on them: simultaneous first compiles race on the cache files (numba#4807)."""
     cfg = rig_config_for(model)
     rec = simulate(cfg, duration=WARM_S, rate=100.0, seed=0)
-    Session(rec, "numba warm-up", cfg).fit(model)
+    try:
+        Session(rec, "numba warm-up", cfg).fit(model)
+    except FAILURES:  # the kernels are compiled by then; the records' own fits say whether this model fits (decision 50)
+        pass
 
 
 # --------------------------------------------------------------------------- rows and their results

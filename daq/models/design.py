@@ -42,6 +42,7 @@ from daq.sim.run import simulate
 from . import forked
 from .candidates import Candidate, candidates_for
 from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
+from .linalg import FAILURES, failure_reason
 from .margins import MIN_EXCESS
 from .programmes import Programme, family
 from .session import Fitted, Portable, Session, portable
@@ -138,14 +139,18 @@ def rivals_for(session: Session, model: Model, candidates: list[Candidate], say:
     for c in candidates:
         m = c.apply(model, "propose")
         say(f"fitting the rival {c.label} on {session.source}")
-        fitted = session.fit(m, warm=base)
-        full = c.strength(m)
-        fixed = None
-        if full is not None:
-            p = m.params()[full]
-            start = STRENGTH_START.get(form_key(c.name, c.form) if c.kind == "effect" else "")
-            if start is not None and abs(fitted.values[full] - p.value) < 0.5 * abs(start - p.value):
-                fitted, fixed = _standing(session, m, base, full, p.value, start, say), full
+        try:
+            fitted = session.fit(m, warm=base)
+            full = c.strength(m)
+            fixed = None
+            if full is not None:
+                p = m.params()[full]
+                start = STRENGTH_START.get(form_key(c.name, c.form) if c.kind == "effect" else "")
+                if start is not None and abs(fitted.values[full] - p.value) < 0.5 * abs(start - p.value):
+                    fitted, fixed = _standing(session, m, base, full, p.value, start, say), full
+        except FAILURES as exc:  # a rival that cannot be fitted is left out, said (decision 50)
+            say(f"  the rival {c.label} is left out: its fit failed: {failure_reason(exc)}")
+            continue
         out.append(Rival(c.label, fitted, fixed))
     return out
 
@@ -164,7 +169,10 @@ def rivals_from(session: Session, model: Model, d: Diagnosis, say: Callable[[str
         out = []
         for c in [tied.cand] + [by_label[m.rival] for m in tied.ties if m.rival in by_label][:MAX_RIVALS - 1]:
             say(f"fitting the rival {c.label} (with {', '.join(x.label for x in rest) or 'nothing else'})")
-            out.append(Rival(c.label, session.fit(_extend(model, rest + [c]))))
+            try:
+                out.append(Rival(c.label, session.fit(_extend(model, rest + [c]))))
+            except FAILURES as exc:  # left out, said (decision 50)
+                say(f"  the rival {c.label} is left out: its fit failed: {failure_reason(exc)}")
         return out, f"undecided between {' and '.join(r.label for r in out)}"
     if d.found and members:
         return [], f"decided: {', '.join(c.label for c in members)}; nothing to propose"
@@ -242,6 +250,14 @@ def _walk(session: Session, base: Fitted, hw: np.ndarray, held: list[tuple[Candi
     strength, and where the record tells it, reached in steps (see :func:`_unseen`). By index: a forked worker
     inherits ``held``."""
     c, m, full = held[i]
+    try:
+        return _walk_one(session, base, hw, c, m, full)
+    except FAILURES as exc:  # an effect whose fit fails cannot stand as a rival: left out, said (decision 50)
+        return _Walked(c.label, [f"{c.label}: left out, its fit failed: {failure_reason(exc)}"])
+
+
+def _walk_one(session: Session, base: Fitted, hw: np.ndarray, c: Candidate, m: Model, full: str) -> _Walked:
+    """_walk of one effect (a candidate, the model with it, its strength parameter)."""
     start = STRENGTH_START[form_key(c.name, c.form)]
     lines: list[str] = []
     value, fitted = start, _held_at(session, m, base, full, start)

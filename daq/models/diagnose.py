@@ -32,6 +32,7 @@ from daq.physics.catalog import CATALOG
 from .candidates import Candidate, add_command, candidates_for
 from .compare import RINGS_OFF, where_it_lives
 from .extensions import fit_extensions, keep_fits
+from .linalg import FAILURES, failure_reason
 from .margins import MIN_EXCESS
 from .report import diagnosis_json
 from .screening import column, linearise, predicted_gain
@@ -78,6 +79,7 @@ class Scored:
     error_neutral: float = float("nan")  # held-out error of the model without it at its fit's other values (own_share)
     fit_only: bool = False  # own_share failed: what it gained, the model without it gains at the same values
     own_z: float = float("nan")  # own_share's consistency z (the candidate against the model without it)
+    failed: str | None = None  # its fit failed numerically: why (it passes no gate; reported, decision 50)
 
     @property
     def effect(self) -> str:
@@ -91,6 +93,14 @@ class Scored:
     @property
     def label(self) -> str:
         return " + ".join(c.label for c in self.cands)
+
+
+def failed_score(cands: tuple[Candidate, ...], reason: str, gain: float = float("nan")) -> Scored:
+    """A candidate (or pair) whose fit failed: no score (NaN, ranked last), the reason kept for the report."""
+    nan = float("nan")
+    return Scored(cands=cands, reduction=nan, step_reduction=nan, step_floor=nan, step_base=nan, floor_bar=nan,
+                  score=-math.inf, error=nan, t_stat=nan, params_added=0, values={}, std={}, predicted_gain=gain,
+                  failed=reason)
 
 
 @dataclass
@@ -198,7 +208,10 @@ def own_share(session: Session, base: Fitted, current: Fitted, s: Scored, floor:
     values.update({k: s.fitted.values[k] for k in current.model.free_names() if k in s.fitted.values})
     if not session.win.select(True).size:
         return True
-    held, ms_held = session.held_out(current.problem, values, also=current.held.start_values)
+    try:
+        held, ms_held = session.held_out(current.problem, values, also=current.held.start_values)
+    except FAILURES:  # as below: the model without it cannot even be followed at those values
+        return True
     neutral = Fitted(current.model, values, current.fit, held, current.problem, ms_held, current.ms_fit)
     s.error_neutral = neutral.rms(session.primary)
     if not math.isfinite(s.error_neutral):  # without it the model cannot even run at those values: it is needed
@@ -272,6 +285,7 @@ class Diagnosis:
     search_total: float = 0.0  # the share of the excess the diagnosis's own fit removed
     rest: dict | None = None  # where the excess the promise leaves lives, when it leaves much (unexplained)
     where: dict | None = None  # in the cycle and the mechanics, when nothing or only part is explained (compare's)
+    failed: dict = field(default_factory=dict)  # every fit that failed numerically: its candidates -> why (decision 50)
 
     @property
     def promised(self) -> Fitted:
@@ -310,11 +324,14 @@ def switch_siblings(cands: list[Candidate], chosen: list[Candidate], cols: dict,
 
 def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, say, workers,
           first: bool, model: Model, seen: dict | None = None,
-          prefix: tuple[Candidate, ...] = ()) -> tuple[list[Scored], list[Screened], Scored | None]:
+          prefix: tuple[Candidate, ...] = (), failed: dict | None = None
+          ) -> tuple[list[Scored], list[Screened], Scored | None]:
     """One forward-selection step: screen, fit the most promising, pairs if no single passes. Every fit is kept in
-    ``seen`` (by the set of candidates the base model was extended by; ``prefix``: the current model's). ``model``:
+    ``seen`` (by the set of candidates the base model was extended by; ``prefix``: the current model's), every fit
+    that failed numerically in ``failed`` (the same keys, its reason: reported, decision 50). ``model``:
     the model file the diagnosis started from (its values are every fit's cold start; users_fit fits from it)."""
     seen = {} if seen is None else seen
+    failed = {} if failed is None else failed
     cold = {n: p.value for n, p in model.params().items()}
     cands = candidates_for(current.model)
     if not cands:
@@ -336,12 +353,13 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
         return [], sorted((Screened(c, g) for c, g in gains.items()), key=lambda s: -s.predicted_gain), None
 
     def singles(these: list[Candidate]) -> list[Scored]:
+        why: dict = {}
         fits = fit_extensions(session, current, [(c,) for c in these], workers, cold=cold, cost=cost,
-                              floors=floor_holder if not floor_holder else None,
-                              on_done=lambda t: say(f"  refitted with {t[0].label}"))
+                              floors=floor_holder if not floor_holder else None, failures=why, on_done=_told(say))
         keep_fits(seen, prefix, fits)
+        keep_failed(failed, prefix, why)
         return [score(base, current, fits[(c,)], (c,), floor_holder[session.primary], session, gains[c])
-                for c in these]
+                if (c,) in fits else failed_score((c,), why[(c,)], gains[c]) for c in these]
 
     scored = singles(chosen)
     siblings = switch_siblings(cands, chosen, cols, scored)
@@ -365,7 +383,7 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
             ok = sorted(ok + _taken(session, base, current, more, floor, say), key=lambda s: -s.score)
     screened = _unfitted(gains, chosen)
     if ok and ok[0].step_reduction < PAIR_BELOW:
-        better = users_fit(session, model, base, current, ok[0], prefix, floor, say)
+        better = users_fit(session, model, base, current, ok[0], prefix, floor, say, failed)
         if better is not None:
             keep_fits(seen, prefix, {better.cands: better.fitted})
             ok = [better] + ok[1:]
@@ -373,11 +391,25 @@ def _step(session: Session, base: Fitted, current: Fitted, floor_holder: dict, s
     if ok and ok[0].step_reduction >= PAIR_BELOW:
         return scored, screened, ok[0]
     return scored, screened, _pairs(session, base, current, lin, cols, scored, ok, floor, say, workers, cold, cost,
-                                    seen, prefix)
+                                    seen, prefix, failed)
+
+
+def _told(say):
+    """fit_extensions' on_done for a step's fits: each refit said, a failed one with its reason."""
+    def done(task: tuple[Candidate, ...], failure: str | None = None) -> None:
+        label = " + ".join(c.label for c in task)
+        say(f"  refitted with {label}" if failure is None else f"  the fit with {label} failed: {failure}")
+    return done
+
+
+def keep_failed(failed: dict, prefix: tuple[Candidate, ...], why: dict[tuple[Candidate, ...], str]) -> None:
+    """Remember each failed fit's reason by the set of candidates the base model was extended by (as keep_fits)."""
+    for task, reason in why.items():
+        failed[frozenset(prefix + task)] = reason
 
 
 def users_fit(session: Session, model: Model, base: Fitted, current: Fitted, best: Scored,
-              prefix: tuple[Candidate, ...], floor: float, say) -> Scored | None:
+              prefix: tuple[Candidate, ...], floor: float, say, failed: dict | None = None) -> Scored | None:
     """The best passing single, short of PAIR_BELOW, fitted as `model add` + `compare` will fit it (delivered_fit:
     the model file with the current model's members and this one added, each from the file's values); its score
     where that is better and it passes and earns its step (own_share) as the diagnosis's own fit did, else None.
@@ -387,7 +419,13 @@ def users_fit(session: Session, model: Model, base: Fitted, current: Fitted, bes
     the step fitted 12 pairs it did not need, and the promise (98 %) was not the share the step had judged. Where the
     single is then named, the promise is this same fit (Session.fit keeps a model's own fit), so the refit costs
     nothing then; only a short single that pairs then beat costs one fit more."""
-    fitted = delivered_fit(session, model, list(prefix) + list(best.cands))
+    try:
+        fitted = delivered_fit(session, model, list(prefix) + list(best.cands))
+    except FAILURES as exc:  # the diagnosis's own fit stands (decision 50)
+        say(f"  {best.label} as the user's path fits it: the fit failed: {failure_reason(exc)}")
+        if failed is not None:
+            failed[frozenset(prefix + best.cands)] = failure_reason(exc)
+        return None
     again = score(base, current, fitted, best.cands, floor, session, best.predicted_gain)
     if not (passes(again) and again.score > best.score and own_share(session, base, current, again, floor)):
         return None
@@ -412,7 +450,7 @@ def _taken(session: Session, base: Fitted, current: Fitted, scored: list[Scored]
 
 def _pairs(session: Session, base: Fitted, current: Fitted, lin, cols: dict, scored: list[Scored],
            ok: list[Scored], floor: float, say, workers, cold: dict[str, float], cost: dict, seen: dict,
-           prefix: tuple[Candidate, ...]) -> Scored | None:
+           prefix: tuple[Candidate, ...], failed: dict) -> Scored | None:
     """No single passes, or the best leaves much of the excess: two effects at once may explain what neither
     does alone, and a single that mimics part of both (a mass for a friction keyed to acceleration) must
     not stand in for them. The pairs: pairs_to_fit; one is taken over a passing single only when clearly better."""
@@ -422,18 +460,21 @@ def _pairs(session: Session, base: Fitted, current: Fitted, lin, cols: dict, sco
     say(("no single candidate passes" if not ok else f"the best, {ok[0].label}, leaves "
          f"{1 - ok[0].step_reduction:.0%} of the excess") + "; fitting pairs: "
         + ", ".join(a.label + " + " + b.label for a, b in pairs))
-    pfits = fit_extensions(session, current, pairs, workers, cold=cold, cost=cost,
-                           on_done=lambda t: say(f"  refitted with {t[0].label} + {t[1].label}"))
+    why: dict = {}
+    pfits = fit_extensions(session, current, pairs, workers, cold=cold, cost=cost, failures=why, on_done=_told(say))
     keep_fits(seen, prefix, pfits)
-    pscored = sorted((score(base, current, pfits[p], p, floor, session) for p in pairs), key=lambda s: -s.score)
-    say("pairs: " + ", ".join(f"{s.label} {s.step_reduction:.0%} (z {s.t_stat:.1f})" for s in pscored))
+    keep_failed(failed, prefix, why)
+    pscored = sorted((score(base, current, pfits[p], p, floor, session) for p in pairs if p in pfits),
+                     key=lambda s: -s.score)
+    say("pairs: " + ", ".join([f"{s.label} {s.step_reduction:.0%} (z {s.t_stat:.1f})" for s in pscored]
+                              + [f"{' + '.join(c.label for c in p)} failed" for p in why]))
     pok = [s for s in pscored if passes(s) and (not ok or s.score >= ok[0].score + PAIR_MARGIN)
            and own_share(session, base, current, s, floor)]
     return pok[0] if pok else (ok[0] if ok else None)
 
 
 def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate], floor: float, say,
-          workers, seen: dict | None = None) -> tuple[list[Candidate], Fitted]:
+          workers, seen: dict | None = None, failed: dict | None = None) -> tuple[list[Candidate], Fitted]:
     """The backward check of forward selection: each effect of the final model must still pass as the last
     one added to all the others. The model without it is refitted from the final fit's values (the others'
     fitted values, not their neutral starts: so it keeps any better basin the whole sequence found); the
@@ -446,12 +487,18 @@ def prune(session: Session, base: Fitted, final: Fitted, members: list[Candidate
     members = list(members)
     while len(members) >= 2:
         tasks = [tuple(m for m in members if m is not x) for x in members]
-        fits = fit_extensions(session, final, tasks, workers, root=base.model)
+        why: dict = {}
+        fits = fit_extensions(session, final, tasks, workers, root=base.model, failures=why)
         if seen is not None:
             keep_fits(seen, (), fits)
-        checks = [(x, score(base, fits[t], final, (x,), floor, session)) for x, t in zip(members, tasks)]
-        say("backward check: " + ", ".join(f"{x.label} {s.step_reduction:.0%} (z {s.t_stat:.1f}) "
-                                            f"{'holds' if passes(s) else 'fails'}" for x, s in checks))
+        if failed is not None:
+            keep_failed(failed, (), why)
+        # a member whose check cannot be fitted (the model without it failed numerically) is not checked: it stays
+        checks = [(x, score(base, fits[t], final, (x,), floor, session)) for x, t in zip(members, tasks) if t in fits]
+        say("backward check: " + ", ".join([f"{x.label} {s.step_reduction:.0%} (z {s.t_stat:.1f}) "
+                                            f"{'holds' if passes(s) else 'fails'}" for x, s in checks]
+                                           + [f"{x.label} not checked (the fit without it failed: {why[t]})"
+                                              for x, t in zip(members, tasks) if t in why]))
         weak = [(x, s) for x, s in checks if not passes(s)]
         if not weak:
             break
@@ -482,11 +529,12 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     first_scored: list[Scored] = []
     first_screened: list[Screened] = []
     seen: dict = {}
+    failed: dict = {}  # fits that failed numerically, keyed as ``seen``: reported, the diagnosis goes on
     entered: dict[Candidate, list[Scored]] = {}  # each member: the singles of the step it entered in (its rivals)
     for k in range(max_steps):
         prefix = tuple(c for s in sequence for c in s.cands)
         scored, screened, accepted = _step(session, base, current, floors, say, workers, first=(k == 0), model=model,
-                                           seen=seen, prefix=prefix)
+                                           seen=seen, prefix=prefix, failed=failed)
         if k == 0:
             first_scored, first_screened = scored, screened
             say(f"noise floor {floors[primary]:.4g} {unit}")
@@ -507,19 +555,24 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     # fitted from neutral can sit in a poorer basin (skipping it here named temperature beside the slider's aging,
     # tests/long: stick-time (log) alone 61 % from neutral, the pair 96 %, the margin against the single +0.34)
     if len(members) >= 2:
-        members, current = prune(session, base, current, members, floor, say, workers, seen)
+        members, current = prune(session, base, current, members, floor, say, workers, seen, failed)
     search, verdicts, delivered = current, [], None
     cap = CAP_MS * float(np.median(base.ms_held[primary])) if base.ms_held else float("inf")
     while members:
         if deliver:  # the promise, and the fit the margins are judged on when it is the better one (decision 28)
             say("what the user gets: the model file + " + ", ".join(c.label for c in members) + ", fitted as compare does")
-            delivered = delivered_fit(session, model, members)
-            if fit_error(session, delivered) < fit_error(session, current):
+            try:
+                delivered = delivered_fit(session, model, members)
+            except FAILURES as exc:  # the diagnosis's own fit is the promise then, and the failure is reported
+                failed[frozenset(members)] = f"as `model add` + `compare` fit it: {failure_reason(exc)}"
+                say(f"  that fit failed: {failure_reason(exc)}; the diagnosis's own fit stands in")
+                delivered = None
+            if delivered is not None and fit_error(session, delivered) < fit_error(session, current):
                 say(f"  the user's path fits better than the diagnosis's ({delivered.rms(primary):.4g} against "
                     f"{current.rms(primary):.4g} {unit} held out): margins judged on it")
                 current = seen[frozenset(members)] = delivered
         kept, current, verdicts = judge(session, base, current, members, entered, seen, floor, say, workers,
-                                        cap=cap, min_t=MIN_T)
+                                        cap=cap, min_t=MIN_T, failed=failed)
         if kept == members:
             break
         members, search = kept, current  # one dropped: the rest's promise is fitted again
@@ -536,7 +589,7 @@ def diagnose(session: Session, model: Model, progress=None, workers: int | None 
     delivered = delivered if found else None
     corr = correlations(session, base)
     d = Diagnosis(base, floor, floors, first_scored, found, "", corr, sequence, first_screened,
-                  current if sequence else None, verdicts, delivered, search_total)
+                  current if sequence else None, verdicts, delivered, search_total, failed=failed)
     d.rest = unexplained(session, d) if found else None
     if (not found and excess_ratio > MIN_EXCESS) or d.rest is not None:
         say("where the model fails: cycle phases, loading, ringing")
@@ -585,6 +638,16 @@ def unexplained(session: Session, d: Diagnosis) -> dict | None:
 
 
 def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
+    text = _summary_of_effects(session, d, excess_ratio)
+    if d.failed:
+        text += (f" {len(d.failed)} fit{'s' if len(d.failed) > 1 else ''} failed numerically and "
+                 f"{'were' if len(d.failed) > 1 else 'was'} left out (" + "; ".join(
+                     " + ".join(sorted(c.label for c in key)) or "the model" for key in d.failed) + "; `failed` in the "
+                 "JSON says why).")
+    return text
+
+
+def _summary_of_effects(session: Session, d: Diagnosis, excess_ratio: float) -> str:
     unit = session.m.units[session.primary]
     e0, floor = d.base.rms(session.primary), d.floor
     if d.found:
@@ -637,7 +700,7 @@ def _summary(session: Session, d: Diagnosis, excess_ratio: float) -> str:
     corr = d.correlations
     strong = [c for c in corr if abs(c["spearman_rho"]) > 0.3 and c["p_value"] < 0.01]
     follows = ", ".join(f"{c['quantity']} (rho {c['spearman_rho']:+.2f})" for c in strong[:4]) or "nothing measured"
-    best = d.candidates[0] if d.candidates else None
+    best = next((c for c in d.candidates if c.failed is None), None)
     above = f"{excess_ratio:.0%} above" if excess_ratio < 1.0 else f"{1.0 + excess_ratio:.1f}x"
     why = ""
     if best is not None and best.fit_only and best.own_z < MIN_T and best.error_neutral > best.error:

@@ -15,6 +15,7 @@ from functools import partial
 
 from . import forked
 from .candidates import Candidate
+from .linalg import FAILURES, failure_reason
 from .session import Fitted, Portable, Session, portable
 from .spec import Model
 
@@ -34,6 +35,7 @@ class Extended:
     task: tuple[Candidate, ...] | str
     fit: Portable | None = None
     floors: dict[str, float] | None = None
+    failed: str | None = None  # the fit failed numerically: why (linalg.failure_reason)
 
 
 @dataclass
@@ -49,7 +51,10 @@ class Work:
 def _fit_task(work: Work, task: tuple[Candidate, ...] | str) -> Extended:
     if task == FLOOR:
         return Extended(task=task, floors=work.session.noise_floor(work.current))
-    f = work.session.fit(_extend(work.root, task), warm=work.current, cold=work.cold)  # type: ignore[arg-type]
+    try:
+        f = work.session.fit(_extend(work.root, task), warm=work.current, cold=work.cold)  # type: ignore[arg-type]
+    except FAILURES as exc:
+        return Extended(task=task, failed=failure_reason(exc))
     return Extended(task=task, fit=portable(f))
 
 
@@ -57,14 +62,18 @@ def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidat
                    on_done=None, floors: dict | None = None,
                    cold: dict[str, float] | None = None,
                    root: Model | None = None,
-                   cost: dict[Candidate, float] | None = None) -> dict[tuple[Candidate, ...], Fitted]:
+                   cost: dict[Candidate, float] | None = None,
+                   failures: dict[tuple[Candidate, ...], str] | None = None) -> dict[tuple[Candidate, ...], Fitted]:
     """Refit the current model once per extension (a candidate, or a pair), each from the current fit with
     the new parameters at neutral, in parallel processes if we can. Given a dict ``floors``, the current
     fit's noise floor is computed too (filled in): in the pool it fills the gap an odd number of fits leaves.
     Given a ``root``, the extensions are of the root model (a model with less than the current one, which
     then gives only the start values: the backward check of prune). ``cost``: a guess at each candidate's cost per
     simulation; the costliest tasks go to the pool first (the order of the results does not depend on it: on the brake
-    bench accel-sign (body) took 7.2 s of 20.6 s of fits and, started last, held one core alone for 4 s)."""
+    bench accel-sign (body) took 7.2 s of 20.6 s of fits and, started last, held one core alone for 4 s).
+    A task whose fit fails numerically (linalg.FAILURES) is left out of the result, its reason put in ``failures``
+    (every caller passes one: a failed fit is reported, not lost) and given to ``on_done`` as a second argument
+    (decision 50)."""
     root = root or current.model
     workers = workers or min(len(tasks) + (floors is not None), os.cpu_count() or 1)
     out: dict[tuple[Candidate, ...], Fitted] = {}
@@ -78,17 +87,27 @@ def fit_extensions(session: Session, current: Fitted, tasks: list[tuple[Candidat
                 if done.floors is not None:
                     floors.update(done.floors)  # type: ignore[union-attr]
                     continue
-                out[done.task] = session.restore(done.fit)
-                if on_done:
-                    on_done(done.task)
+                _collect(session, done, out, failures, on_done)
         return out
     if floors is not None:
         floors.update(session.noise_floor(current))
+    work = Work(session, current, root, cold)
     for task in tasks:
-        out[task] = session.fit(_extend(root, task), warm=current, cold=cold)
-        if on_done:
-            on_done(task)
+        _collect(session, _fit_task(work, task), out, failures, on_done)
     return out
+
+
+def _collect(session: Session, done: Extended, out: dict, failures: dict | None, on_done) -> None:
+    """A task's answer into the results (its fit) or the failures (its reason); on_done told either way."""
+    if done.failed is not None:
+        if failures is not None:
+            failures[done.task] = done.failed
+        if on_done:
+            on_done(done.task, done.failed)
+        return
+    out[done.task] = session.restore(done.fit)
+    if on_done:
+        on_done(done.task)
 
 
 def keep_fits(seen: dict, prefix: tuple[Candidate, ...], fits: dict[tuple[Candidate, ...], Fitted]) -> None:

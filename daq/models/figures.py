@@ -239,10 +239,14 @@ def diagnose_figure(session: Session, diag, path: Path) -> None:
     ax = fig.add_subplot(gs[0, 0])
     added = {c.label for step in diag.sequence for c in step.cands} if diag.found else set()
     # a candidate whose gain the model without it reaches too (at the candidate fit's values) is not the effect's
+    # a candidate whose fit failed numerically: an empty hatched bar at 0, said in its name (decision 50)
     shown = diag.candidates[::-1]
-    names = [c.label + (" (fit, not effect)" if c.fit_only else "") for c in shown]
-    red = [c.reduction for c in shown]
-    ax.barh(names, red, color=["C2" if c.label in added else ("0.75" if c.fit_only else "C0") for c in shown])
+    names = [c.label + (" (fit failed)" if c.failed else " (fit, not effect)" if c.fit_only else "") for c in shown]
+    red = [0.0 if c.failed else c.reduction for c in shown]
+    bars = ax.barh(names, red, color=["C2" if c.label in added else ("0.75" if c.fit_only else "C0") for c in shown])
+    for bar, c in zip(bars, shown):
+        if c.failed:
+            bar.set(width=0.05, hatch="///", facecolor="none", edgecolor="C3")
     if diag.sequence and diag.final is not None:
         total = diag.reduction(diag.promised, primary)
         ax.axvline(total, color="C2", ls="--", label=f"added together, as model add + compare fit it: {total:.0%}")

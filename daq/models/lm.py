@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import robust
+from . import linalg, robust
 
 STAGE_SHIFT = 0.1  # a stage from a previous one's end (another loss) stops where its Gauss-Newton step would move
 # the parameters by less than this many standard errors (jointly): the refreshes that confirm a small relative
@@ -39,6 +39,17 @@ START_DAMPING = 100.0
 # simulation, design._TruthRecord): where the damping falls from 100 the fits end in the same windows' optima,
 # for a quarter less CPU (design._TruthRecord._own_states has the figures).
 NEAR_DAMPING = 1.0
+
+# A scaled residual this large (in noise standard deviations) is no prediction: a window the integrator gave up on
+# (NaN), or a simulation that diverged. Problem.scaled caps every residual here. Why cap a finite one too: a fixed-step
+# simulation that diverges runs to 1e300 before it reaches inf; such a window reached a forward difference as
+# (1e300 - r) / 1e-7, overflowed to inf, and made the normal equations NaN ("SVD did not converge", decision 50).
+NO_PREDICTION = 1e6
+
+
+def capped(z: np.ndarray) -> np.ndarray:
+    """Scaled residuals with NaN as NO_PREDICTION and every value within +-NO_PREDICTION."""
+    return np.clip(np.nan_to_num(z, nan=NO_PREDICTION), -NO_PREDICTION, NO_PREDICTION)
 
 # what a fit simulates: Problem.scaled(values, windows, start values, length) -> (n_win, n_out, n_samples)
 Scaled = Callable[[dict, np.ndarray, np.ndarray | None, int | None], np.ndarray]
@@ -56,7 +67,7 @@ def bounded_step(S: np.ndarray, rhs: np.ndarray, theta: np.ndarray, lo: np.ndarr
     d = np.zeros_like(theta)
     free = ~held
     if free.any():
-        d[free] = np.linalg.solve(S[np.ix_(free, free)], rhs[free])
+        d[free] = linalg.solve(S[np.ix_(free, free)], rhs[free], "the parameters' step")
     return d
 
 
@@ -66,24 +77,45 @@ def parameter_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray, ga: np.ndarray, 
     if not ga.size:
         return 0.0
     nv = C.shape[1]
-    try:
-        Ci = np.linalg.inv(C + 1e-12 * np.eye(nv)[None])
-    except np.linalg.LinAlgError:  # a window whose start values the data do not fix (seen: a constant-speed record
-        Ci = np.linalg.pinv(C)  # with a strength held fixed, daq demo --closed-loop): the pseudo-inverse profiles it
+    # a window whose start values the data do not fix (seen: a constant-speed record with a strength held fixed,
+    # daq demo --closed-loop): linalg.inverse falls back to the pseudo-inverse, which profiles it
+    Ci = linalg.inverse(C + 1e-12 * np.eye(nv)[None], "the start values' blocks (parameter gain)", ridge=False)
     BCi = np.einsum("wij,wjk->wik", B, Ci)
     S = A - np.einsum("wij,wkj->ik", BCi, B)
     rhs = ga - np.einsum("wij,wj->i", BCi, gc)
-    return 0.5 * float(rhs @ np.linalg.lstsq(S, rhs, rcond=1e-12)[0])
+    return 0.5 * float(rhs @ linalg.lstsq(S, rhs, "the parameters' Schur complement (parameter gain)"))
+
+
+def no_prediction(z: np.ndarray) -> np.ndarray:
+    """Per window (rows of ``z``, residuals flattened after the first axis): has it no prediction (NO_PREDICTION)?"""
+    return np.abs(z.reshape(z.shape[0], -1)).max(axis=1, initial=0.0) >= NO_PREDICTION
+
+
+def difference(resid, r: np.ndarray, step: float, at) -> np.ndarray:
+    """A forward difference (resid(at(step)) - r) / step of one column, per window; where the stepped simulation has no
+    prediction and the iterate's has one, the backward difference there instead (one simulation more), and where
+    that has none either, 0: that window says nothing of this direction. Why: near the edge of a fixed-step
+    integrator's stability a step of 1e-4 of a parameter can make a window diverge; a difference across that edge is
+    no derivative, and it made the whole fit's normal equations NaN (decision 50)."""
+    rp = resid(at(step))
+    col = (rp - r) / step
+    off = no_prediction(rp) & ~no_prediction(r)
+    if off.any():
+        rm = resid(at(-step))
+        col[off] = ((r - rm) / step)[off]
+        col[off & no_prediction(rm)] = 0.0
+    return col
 
 
 def start_jacobian(resid, V: np.ndarray, r: np.ndarray, vscale: np.ndarray) -> np.ndarray:
-    """Per window, d(residuals)/d(start values) by forward differences: one simulation per start slot."""
+    """Per window, d(residuals)/d(start values) by forward differences: one simulation per start slot (difference)."""
     j = np.empty(r.shape + (V.shape[1],))
     for q in range(V.shape[1]):
-        dv = 1e-4 * vscale[q]
-        vp = V.copy()
-        vp[:, q] += dv
-        j[..., q] = (resid(vp) - r) / dv
+        def at(dv: float, q: int = q) -> np.ndarray:
+            vp = V.copy()
+            vp[:, q] += dv
+            return vp
+        j[..., q] = difference(resid, r, 1e-4 * vscale[q], at)
     return j
 
 
@@ -132,9 +164,12 @@ class Joint:
             hstep = 1e-4 * max(abs(th[i]), 1e-3 * (hi[i] - lo[i]), 1e-8)
             if th[i] + hstep > hi[i]:
                 hstep = -hstep
-            tp = th.copy()
-            tp[i] += hstep
-            jg[..., i] = (self.resid(tp, vel) - r) / hstep
+
+            def at(h: float, i: int = i) -> np.ndarray:
+                tp = th.copy()
+                tp[i] += h
+                return tp
+            jg[..., i] = difference(lambda tp: self.resid(tp, vel), r, hstep, at)
         return jg, start_jacobian(lambda vp: self.resid(th, vp), vel, r, self.vscale)
 
 
@@ -180,7 +215,7 @@ def trial_step(ob: Joint, st: JointState, b: Blocks) -> tuple[np.ndarray, np.nda
     k, nv, lam = len(ob.free), st.V.shape[1], st.lam
     Ad = b.A + lam * np.diag(np.diag(b.A) + 1e-12)
     Cd = b.C + lam * (np.einsum("wii->wi", b.C)[:, :, None] * np.eye(nv)[None] + 1e-12 * np.eye(nv)[None])
-    Ci = np.linalg.inv(Cd)
+    Ci = linalg.inverse(Cd, "the start values' blocks")
     BCi = np.einsum("wij,wjk->wik", b.B, Ci)
     S = Ad - np.einsum("wij,wkj->ik", BCi, b.B) if k else np.zeros((0, 0))
     rhs = -b.ga + np.einsum("wij,wj->i", BCi, b.gc) if k else np.zeros(0)
@@ -197,9 +232,12 @@ def accept(ob: Joint, st: JointState, th_new: np.ndarray, V_new: np.ndarray, R_n
         sth, sV = th_new - st.theta, V_new - st.V
         pred = np.einsum("wri,i->wr", st.Jg, sth) + np.einsum("wrj,wj->wr", st.Jv, sV)
         norm2 = float(sth @ sth) + np.einsum("wj,wj->w", sV, sV)
-        u = (R_new - st.R - pred) / np.maximum(norm2, 1e-300)[:, None]
-        st.Jg = st.Jg + u[:, :, None] * sth[None, None, :]
-        st.Jv = st.Jv + u[:, :, None] * sV[:, None, :]
+        with np.errstate(over="ignore", invalid="ignore"):  # (a step of 1e-160: the update is skipped, below)
+            u = (R_new - st.R - pred) / np.maximum(norm2, 1e-300)[:, None]
+            Jg = st.Jg + u[:, :, None] * sth[None, None, :]
+            Jv = st.Jv + u[:, :, None] * sV[:, None, :]
+        if np.all(np.isfinite(Jg)) and np.all(np.isfinite(Jv)):
+            st.Jg, st.Jv = Jg, Jv
     st.theta, st.V, st.R, st.cost, st.W = th_new, V_new, R_new, cost_new, W_new
     st.lam = max(st.lam / 5.0, 1e-7)
     return rel
@@ -331,8 +369,8 @@ def converged_rows(st: StartsState, rows: np.ndarray) -> tuple[np.ndarray, np.nd
     C = np.einsum("wri,wrj->wij", Jr, Jr)
     g = np.einsum("wri,wr->wi", Jr, Rr)
     D = np.einsum("wii->wi", C) + 1e-12
-    gn = 0.5 * np.einsum("wi,wi->w", g, np.linalg.solve(C + 1e-9 * D[:, :, None] * np.eye(nv)[None],
-                                                          g[..., None])[..., 0])
+    gn = 0.5 * np.einsum("wi,wi->w", g, linalg.solve(C + 1e-9 * D[:, :, None] * np.eye(nv)[None], g[..., None],
+                                                       "a window's start values (convergence test)")[..., 0])
     conv = gn <= np.maximum(1e-6 * st.cost[rows], st.enough)
     carried = conv & ~st.fresh[rows]  # judged on a carried Jacobian: judged again on a fresh one next time round
     st.active[rows[conv & ~carried]] = False
@@ -347,7 +385,7 @@ def starts_trial(ob: Starts, st: StartsState, rows: np.ndarray, C: np.ndarray, g
     failure on a carried one is no failure yet. Returns the windows that need a fresh Jacobian now."""
     nv = st.V.shape[1]
     Cd = C + st.lam[rows, None, None] * (D[:, :, None] * np.eye(nv)[None])
-    dV = -np.linalg.solve(Cd, g[..., None])[..., 0]
+    dV = -linalg.solve(Cd, g[..., None], "a window's start values")[..., 0]
     Vt = st.V[rows] + dV
     Rt = ob.resid(Vt, rows)
     ct, Wt = ob.loss(Rt, rows)
@@ -357,9 +395,12 @@ def starts_trial(ob: Starts, st: StartsState, rows: np.ndarray, C: np.ndarray, g
     acc = rows[ok]
     if ob.broyden and acc.size:  # per window: J += (dR - J dV) dV^T / |dV|^2
         d = dV[ok]
-        u = (Rt[ok] - st.R[acc] - np.einsum("wrj,wj->wr", st.J[acc], d)) / np.maximum(
-            np.einsum("wj,wj->w", d, d), 1e-300)[:, None]
-        st.J[acc] += u[:, :, None] * d[:, None, :]
+        with np.errstate(over="ignore", invalid="ignore"):  # (a window whose update is not finite keeps its Jacobian)
+            u = (Rt[ok] - st.R[acc] - np.einsum("wrj,wj->wr", st.J[acc], d)) / np.maximum(
+                np.einsum("wj,wj->w", d, d), 1e-300)[:, None]
+            Jn = st.J[acc] + u[:, :, None] * d[:, None, :]
+        fin = np.all(np.isfinite(Jn.reshape(acc.size, -1)), axis=1)
+        st.J[acc[fin]] = Jn[fin]
         st.fresh[acc] = False
     st.V[acc], st.R[acc], st.cost[acc], st.W[acc] = Vt[ok], Rt[ok], ct[ok], Wt[ok]
     st.lam[acc] = np.maximum(st.lam[acc] / 5.0, 1e-7)

@@ -54,6 +54,7 @@ def diagnosis_json(d: Diagnosis, session: Session) -> dict:
         "unexplained": d.rest,
         "where": d.where,  # error by cycle phase, loading against the drive, ringing (compare.where_it_lives)
         "candidates": _candidates(d),
+        "failed": _failed(d),
         "residual_correlations": d.correlations[:8],
         "windows": _windows(session),
         "noise": {"sigma": session.m.sigma, "source": session.m.sigma_source},
@@ -83,10 +84,20 @@ def _candidates(d: Diagnosis) -> list[dict]:
               "consistency_z": c.t_stat, "params_added": c.params_added, "values": c.values,
               "std": c.std, "predicted_gain": c.predicted_gain,
               "error_without_at_its_values": None if math.isnan(c.error_neutral) else c.error_neutral,
-              "fit_only": c.fit_only}
+              "fit_only": c.fit_only, "failed": None}
+             if c.failed is None else
+             {"effect": c.effect, "form": c.form, "label": c.label, "reduction": None, "consistency_z": None,
+              "values": {}, "predicted_gain": c.predicted_gain, "failed": c.failed}
              for c in d.candidates]
             + [{"effect": s.cand.phenomenon, "form": s.cand.form, "label": s.cand.label, "reduction": None,
                 "predicted_gain": s.predicted_gain, "fitted": False} for s in d.screened])
+
+
+def _failed(d: Diagnosis) -> list[dict]:
+    """Every fit of the diagnosis that failed numerically (a candidate, a pair, a margin's refit, the user's path):
+    the candidates the model was extended by, and why (decision 50)."""
+    return [{"extended_by": sorted(c.label for c in key), "reason": why}
+            for key, why in sorted(d.failed.items(), key=lambda kv: sorted(c.label for c in kv[0]))]
 
 
 def _windows(session: Session) -> dict:
@@ -104,6 +115,9 @@ def diagnosis_text(d: Diagnosis, res: dict) -> str:
     the promise, and what the residual follows when nothing was found (``res``: diagnosis_json's)."""
     lines = [d.summary, f"  {'candidate':36s} {'reduction':>9s} {'z':>6s}  params"]
     for c in res["candidates"]:
+        if c.get("failed"):
+            lines.append(f"  {c['label']:36s} {'failed':>9s} {'':6s}  (its fit failed: {c['failed']})")
+            continue
         if c["reduction"] is None:
             lines.append(f"  {c['label']:36s} {'-':>9s} {'':6s}  (screened, predicted gain {c['predicted_gain']:.3g}; "
                          "not fitted)")
@@ -120,6 +134,10 @@ def diagnosis_text(d: Diagnosis, res: dict) -> str:
     if res["missing_effect_found"]:
         lines.append(f"  promised: {res['final_reduction']:.0%} of the excess, as `model add` + `compare` fit it "
                      f"(the diagnosis's own fit: {res['search_reduction']:.0%})")
+    later = [f for f in res["failed"] if f["extended_by"] not in [[c["label"]] for c in res["candidates"]]]
+    if later:
+        lines.append("  fits that failed (left out, the diagnosis went on): " + "; ".join(
+            f"{' + '.join(f['extended_by']) or 'the model'}: {f['reason']}" for f in later))
     if not d.found and d.correlations:
         lines.append("  residual correlates with: " + ", ".join(
             f"{c['quantity']} ({c['spearman_rho']:+.2f})" for c in d.correlations[:5]))

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from daq.config import RigConfig
-from daq.errors import InputError
+from daq.errors import InputError, NumericalFailure
 from daq.io.interchange import Recording
 from daq.io.loading import load_data
 from daq.physics.effects import CATALOG, TAIL
@@ -28,7 +28,7 @@ from . import forked, robust
 from .build import Builder
 from .data import Measured, RigData, rig_data
 from .shooting import Problem, ShootingFit
-from .spec import STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
+from .spec import SECOND_START, STRENGTH_START, Model, drive_source, form_key, rig_config_for, strength_key
 from .windows import Windows, make_windows, window_weights
 
 MIN_CONTINUATION = 8  # samples
@@ -116,6 +116,21 @@ def portable(f: Fitted) -> Portable:
     return Portable(given=f.problem.builder.model, model=f.model, values=f.values, fit=f.fit, held=f.held,
                     ms_held=f.ms_held, ms_fit=f.ms_fit, weights=f.problem.weights,
                     sample_weights=f.problem.sample_weights)
+
+
+def no_prediction(ms_fit: dict[str, np.ndarray], ms_held: dict[str, np.ndarray]) -> None:
+    """A fit whose model, at its end, predicts nothing (NaN) in some window is no fit: NumericalFailure, saying in
+    how many windows. Why not go on: that window's error is NaN, so is every score made of it, and a NaN score
+    passes no gate and fails none: a candidate would drop out of a diagnosis unreported (decision 50)."""
+    def bad(ms: dict[str, np.ndarray]) -> tuple[int, int]:
+        if not ms:
+            return 0, 0
+        ok = np.all(np.isfinite(np.stack(list(ms.values()))), axis=0)
+        return int(ok.size - ok.sum()), int(ok.size)
+    (bf, nf), (bh, nh) = bad(ms_fit), bad(ms_held)
+    if bf or bh:
+        raise NumericalFailure(f"the fitted model's simulation is not finite in {bf} of {nf} fit windows and {bh} of "
+                               f"{nh} held-out windows")
 
 
 def _joint_task(session: Session, args: tuple, _: object) -> Portable:
@@ -264,19 +279,23 @@ class Session:
         also = warm.held.start_values if warm is not None and warm.problem.slots == pr.slots else None
         held, ms_held = self.held_out(pr, res.values, also=also) if hw.size else (res, {})
         fitted_model = model.with_values({k: res.values[k] for k in free}, res.std)
-        return Fitted(fitted_model, res.values, res, held, pr, ms_held,
-                      pr.window_errors(res.values, fw, res.start_values))
+        ms_fit = pr.window_errors(res.values, fw, res.start_values)
+        no_prediction(ms_fit, ms_held)
+        return Fitted(fitted_model, res.values, res, held, pr, ms_held, ms_fit)
 
     def _starts(self, model: Model, file_values: dict[str, float], bounds: dict, warm: Fitted | None,
                 cold: dict[str, float] | None, restart: bool) -> tuple[list, tuple | None, set[str]]:
         """_fit_warm's starts (values, start values or None: the data's), each once; the nested start (``warm``'s
         fitted values, the new parameters at the file's) and the new parameters' names."""
         moved = strength_starts(model, file_values)
+        second = second_starts(model, moved, bounds)
         starts: list[tuple[dict[str, float], np.ndarray | None]] = []
         if warm is None:  # (with a warm fit the file's values are the ``cold`` start below: the same starts
             starts.append((file_values, None))  # as diagnose's candidate fits, so both paths end alike)
             if moved:
                 starts.append(({**file_values, **moved}, None))
+            if second:
+                starts.append(({**file_values, **moved, **second}, None))
             guess = {k: float(np.clip(v, *bounds[k])) for k, v in self.law_guess.items() if k in bounds}
             if guess:  # the law's levels as the data show them: a contact far from the config's still converges;
                 # once with the file's effects, once with every free effect at neutral (the guess is the bare law's
@@ -302,6 +321,9 @@ class Session:
             ladder = [moved_new]
             if restart and moved_new:  # a model's own fit: the new strengths a decade further too (see LADDER)
                 ladder.append({k: float(np.clip(LADDER * v, *bounds[k])) for k, v in moved_new.items()})
+            second_new = {k: v for k, v in second.items() if k in new}
+            if second_new and moved_new:
+                ladder.append({**moved_new, **second_new})
             for strengths in ladder:
                 if strengths:
                     starts.append(({**values, **strengths}, warm.fit.start_values))
@@ -368,8 +390,15 @@ class Session:
         half = max(MIN_CONTINUATION, self.win.length // 2)
         probe = PROBE_ITER if len(starts) > 1 else max_iter // 2
         ls = robust.SQUARES
-        best = min((pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half, loss=ls)
-                    for values, vel in starts), key=lambda f: f.cost)
+        probes, failed = [], []
+        for values, vel in starts:  # a start whose fit fails numerically is left out; the others go on (decision 50)
+            try:
+                probes.append(pr.fit(values, free, bounds, fw, start_values=vel, max_iter=probe, length=half, loss=ls))
+            except NumericalFailure as exc:
+                failed.append(exc)
+        if not probes:
+            raise failed[0]
+        best = min(probes, key=lambda f: f.cost)
         if probe < max_iter // 2:
             best = pr.fit(best.values, free, bounds, fw, start_values=best.start_values,
                           max_iter=max_iter // 2 - probe, length=half, loss=ls)
@@ -593,6 +622,21 @@ def _free_strengths(model: Model, values: dict[str, float]) -> list[tuple[str, s
         full = f"effects.{name}.{key}"
         if key is not None and full in values and params[full].free:
             out.append((name, full, CATALOG[name].params_for(model.rig, eff.form)[0].neutral))
+    return out
+
+
+def second_starts(model: Model, moved: dict[str, float], bounds: dict) -> dict[str, float]:
+    """SECOND_START's values for the effects whose strength ``moved`` starts away from neutral (free parameters
+    only, clipped to their bounds)."""
+    out = {}
+    for name, eff in model.effects.items():
+        key = strength_key(model.rig, name, eff.form) if name in CATALOG and eff.path is None else None
+        if key is None or f"effects.{name}.{key}" not in moved:
+            continue
+        for k, v in SECOND_START.get(form_key(name, eff.form), {}).items():
+            full = f"effects.{name}.{k}"
+            if full in bounds:
+                out[full] = float(np.clip(v, *bounds[full]))
     return out
 
 

@@ -147,11 +147,12 @@ class Problem:
     def scaled(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None,
                length: int | None = None) -> np.ndarray:
         """(pred - meas)/sigma per window, output and sample (from the start sample when positions are free), no
-        weights: (n_win, n_out, L - r0); a window the integrator gave up on is 1e6 everywhere."""
+        weights: (n_win, n_out, L - r0); a window the integrator gave up on is lm.NO_PREDICTION everywhere, and no
+        residual is larger than that (lm.NO_PREDICTION says why)."""
         shot = self.shoot(values, windows, start_values, length)
         z = np.stack([(shot.pred[k][:, self.r0:] - shot.meas[k][:, self.r0:]) / self.m.sigma[k]
                       for k in self.outputs], axis=1)
-        return np.nan_to_num(z, nan=1e6, posinf=1e6, neginf=-1e6)
+        return lm.capped(z)
 
     def residuals(self, values: dict[str, float], windows: np.ndarray, start_values: np.ndarray | None,
                   length: int | None = None) -> np.ndarray:

@@ -81,14 +81,18 @@ def rivals_for(x: Candidate, singles: list[Scored], members: list[Candidate], mi
 
 
 def judge(session: Session, base: Fitted, final: Fitted, members: list[Candidate], entered: dict[Candidate, list],
-          seen: dict, floor: float, say, workers, cap: float, min_t: float) -> tuple[list[Candidate], Fitted, list[Verdict]]:
+          seen: dict, floor: float, say, workers, cap: float, min_t: float,
+          failed: dict | None = None) -> tuple[list[Candidate], Fitted, list[Verdict]]:
     """Margins for every member of the final model: the paired bootstrap over held-out windows (margins.py) of the
     final model against the model without it and against each plausible rival refitted in its place (fits already
     made are reused from ``seen``; ``cap``: each window's mean square is capped there, as in the step scores). A member the data do not prefer over nothing at that margin is dropped (the
     weakest first, then all are judged again); a rival it does not beat stays standing beside it: a tie.
     Why substitution and not the step's own ranking: a step's singles each extend the model of that step, and an
     effect taken first can stand in for a later one (a mass for a friction keyed to acceleration) until the later
-    one is in; only the final model with the rival in the member's place says which the data prefer."""
+    one is in; only the final model with the rival in the member's place says which the data prefer.
+    A refit that fails numerically (its reason kept in ``failed``, by its candidates) leaves that rival out; where
+    it is the model without the member, the member is judged against the model without any member (decision 50)."""
+    failed = {} if failed is None else failed
     p = session.primary
     excess = base.rms(p) - floor
     members = list(members)
@@ -105,7 +109,14 @@ def judge(session: Session, base: Fitted, final: Fitted, members: list[Candidate
                     todo.append(t)
         if todo:
             say("margins: refitting " + ", ".join(" + ".join(c.label for c in t) for t in todo))
-            keep_fits(seen, (), fit_extensions(session, final, todo, workers, root=base.model))
+            why: dict = {}
+            keep_fits(seen, (), fit_extensions(session, final, todo, workers, root=base.model, failures=why))
+            for t, reason in why.items():
+                failed[frozenset(t)] = reason
+                say(f"  the fit with {' + '.join(c.label for c in t)} failed: {reason}")
+        for x in members:  # a rival whose refit failed has no margin: left out; the model without x: without all
+            plan[x] = [(name, t if not t or frozenset(t) in seen or name != NOTHING else ())
+                       for name, t in plan[x] if not t or frozenset(t) in seen or name == NOTHING]
         verdicts = []
         for x in members:
             ms = [margin(x.label, name, final.ms_held[p], (seen[frozenset(t)] if t else base).ms_held[p], excess, cap)
@@ -123,7 +134,7 @@ def judge(session: Session, base: Fitted, final: Fitted, members: list[Candidate
             return members, final, verdicts
         v = min(weak, key=lambda v: (v.margins[0].lower, v.cand.label))
         members.remove(v.cand)
-        final = seen[frozenset(members)] if members else base
+        final = seen.get(frozenset(members), base) if members else base  # (its fit failed: base, decision 50)
         say(f"  dropped {v.cand.label}: the model without it does as well within the margin "
             f"({v.margins[0].share:+.2f}, 5 % bound {v.margins[0].lower:+.2f})")
     return [], base, []

@@ -76,6 +76,10 @@ class E(IntEnum):
 
 N_E = len(E)
 DC_MIN = 2e-4  # [m] the smallest Dc the aging law uses: |v|/Dc stays within RK4's stable step at 0.5 ms
+# [s] the shortest lag the drive (belt-speed, lag-ripple) uses: RK4 on (v_cmd - v_lag)/tau is stable for h/tau < 2.785,
+# so at the brake's 0.5 ms a fitted tau under 0.18 ms diverged to 1e300 and overflowed a fit (decision 50); under
+# 1 ms a lag is two samples of a 1 kHz record, which nothing resolves
+VB_TAU_MIN = 1e-3
 
 
 class TAIL(IntEnum):

@@ -12,7 +12,7 @@ import numpy as np
 
 from .catalog import (  # noqa: F401 - re-exported: the rigs' equations read their slots from here
     ALL_RIGS, BEARING_SGN_EPS, CATALOG, DC_MIN, ENVIRONMENT_SLOTS, N_E, N_TAIL, TAIL, E, EffectSpec, FormSpec, ParamSpec,
-    neutral_vector,
+    VB_TAU_MIN, neutral_vector,
 )
 from .jit import helper, kernel
 
@@ -211,7 +211,7 @@ def env_rates(friction_power: float, v_cmd: float, v_drive: float, t: float, tem
               t_amb: float, drift: float, r_th: float, tau_th: float, vb_tau: float):
     """Rates of temperature, drive lag and drive travel: (dT/dt, dv_lag/dt, dpos/dt)."""
     d_temp = (t_amb + drift * t + r_th * abs(friction_power) - temp) / tau_th
-    d_lag = (v_cmd - v_lag) / vb_tau if vb_tau > 0.0 else 0.0
+    d_lag = (v_cmd - v_lag) / max(vb_tau, VB_TAU_MIN) if vb_tau > 0.0 else 0.0
     return d_temp, d_lag, v_drive
 
 

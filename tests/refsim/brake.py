@@ -169,6 +169,7 @@ class ReferenceRig:
         """The effects' parameters both rigs read alike (plain floats)."""
         p, e = self.p, self.fx
         self.sl = e.get("stick-log")
+        self.sc = e.get("stick-creep")
         self.ab = e.get("accel-body")
         ar = e.get("arrhenius")
         self.ar_E = ar["E"]
@@ -179,6 +180,27 @@ class ReferenceRig:
         self.wv = e.get("waviness")
         self.br_eps = e.get("bearing")["eps"]
         self.C_th = p.tau_thermal / p.r_thermal  # heat capacity [J/K]
+
+    def aging(self, th: float) -> float:
+        """The static peak's aging factor on the stick-time clock th (stick-log on Dieterich's state, or
+        stick-creep on the creep clock: one at a time, they share the slot)."""
+        if self.sc["b"] != 0.0:
+            return fx.dieterich_factor(th, self.sc["b"], self.sc["theta"])
+        return fx.dieterich_factor(th, self.sl["b"], self.sl["theta"])
+
+    def clock_rate(self, th: float, v_rel: float) -> float:
+        """d/dt of the stick-time clock: the creep clock with stick-creep on, Dieterich's aging law otherwise."""
+        if self.sc["b"] != 0.0:
+            return fx.creep_clock_rate(th, v_rel, self.sc["v_c"], self.sc["L_r"])
+        return fx.dieterich_rate(th, v_rel, self.sl["Dc"])
+
+    def clock_start(self, v0: float) -> float:
+        """The clock at t = 0: steady sliding on a running belt, or 1 s of contact age at rest."""
+        if v0 == 0.0:
+            return 1.0
+        if self.sc["b"] != 0.0:
+            return fx.creep_clock_steady(v0, self.sc["v_c"], self.sc["L_r"])
+        return self.sl["Dc"] / abs(v0)
 
     def _drive_base(self, t: float, vl: float, vld: float):
         """The drive before its ripple: (commanded speed, lagged or commanded speed, rates of the lag's states)."""
@@ -290,7 +312,7 @@ class BrakeRig(ReferenceRig):
         v_rel = v1 - vb
 
         n = self.normal_load(x1, y1, w1)
-        peak = p.beta * fx.dieterich_factor(th, self.sl["b"], self.sl["theta"]) \
+        peak = p.beta * self.aging(th) \
             * fx.power_rate_factor(q, self.fr["g"], self.fr["q0"], self.fr["n"])
         mu = mu_law7(v_rel, p.mu0, p.gamma, p.alpha, peak)
         mu = mu * fx.arrhenius_factor(T, self.ar_E, self.ar_Tref)
@@ -307,7 +329,7 @@ class BrakeRig(ReferenceRig):
 
         power = abs(f * v_rel)
         d_T = (p.eta * power - (T - p.T_amb_K) / p.r_thermal) / self.C_th
-        d_th = fx.dieterich_rate(th, v_rel, self.sl["Dc"])
+        d_th = self.clock_rate(th, v_rel)
         # d/dt of the spring load the contact holds: (d2V/dx1^2) x1' + (d2V/dx1 dy1) y1'
         d3 = y1 + x1 * x1 / (2 * p.r)
         load_rate = (self.k1 + self.k2 + self.k3 * (x1 * x1 / p.r ** 2 + d3 / p.r)) * v1 \
@@ -331,8 +353,7 @@ class BrakeRig(ReferenceRig):
         s = np.zeros(N_STATE)
         s[0], s[2] = x1, y1
         s[4] = self.p.T_amb_K
-        # Dieterich state at t=0: steady sliding on a running belt, or 1 s of contact age at rest
-        s[5] = self.sl["Dc"] / abs(v0) if v0 != 0.0 else 1.0
+        s[5] = self.clock_start(v0)
         s[8] = v0
         return s
 

@@ -118,7 +118,7 @@ class DrumRig(ReferenceRig):
         n = p.P * (1.0 + p.runout * math.sin(theta_d))
         sphi, cphi = math.sin(phi), math.cos(phi)
         spring = self.k * p.Rs * sphi  # S
-        peak = fx.dieterich_factor(th, self.sl["b"], self.sl["theta"]) \
+        peak = self.aging(th) \
             * fx.power_rate_factor(q, self.fr["g"], self.fr["q0"], self.fr["n"])
         mu = self.mu_law3(v_wz, peak)
         mu = mu * fx.arrhenius_factor(T, self.ar_E, self.ar_Tref)
@@ -134,7 +134,7 @@ class DrumRig(ReferenceRig):
 
         T_amb = p.T_amb_K + p.drift * t
         d_T = (p.eta * abs(f * v_wz) - (T - T_amb) / p.r_thermal) / self.C_th
-        d_th = fx.dieterich_rate(th, v_wz, self.sl["Dc"])
+        d_th = self.clock_rate(th, v_wz)
         load_rate = self.k * p.Rs ** 2 * math.cos(2.0 * phi) * w / p.R  # d/dt (spring torque / R)
         d_q = fx.lorentz_stuck(v_wz, p.v_stick) * (load_rate - q) / self.fr["tau_q"]
         d_af = (p.R * acc - af) / self.ab["tau_a"]
@@ -152,7 +152,7 @@ class DrumRig(ReferenceRig):
         v0 = self.drive.command(0.0)
         s = np.zeros(N_STATE)
         s[2] = self.p.T_amb_K
-        s[3] = self.sl["Dc"] / abs(v0) if v0 != 0.0 else 1.0
+        s[3] = self.clock_start(v0)
         s[6] = v0
         return s
 

@@ -23,6 +23,14 @@ its hybrid chain in belt.py), with what our catalog uses instead:
     d theta_s/dt = 1 - |V_rel| theta_s / Dc: it grows like the time in contact while
     the contact creeps and is wiped out by a slip of a few Dc. Keys: b (magnitude),
     theta [s], Dc [m]. Catalog: saturating 1 + g(1 - exp(-t/tau)) of a stick clock.
+``stick-creep`` (phenomenon stick-time)
+    the same logarithmic growth of the static peak, 1 + b ln(1 + t_c/theta), on a *creep clock*
+    t_c: it runs while the contact creeps, at the rate of a Lorentzian creep indicator
+    phi = 1/(1 + (V/v_c)^2), and is wiped out over a slip distance L_r once the contact slides,
+    d t_c/dt = phi - (1 - phi) |V| t_c / L_r. The clock shares the Dieterich state's slot (one
+    stick-time form at a time: stick-log and stick-creep together are refused). Keys: b
+    (magnitude), theta [s], v_c [m/s], L_r [m]. Catalog: a Gaussian stick clock that decays in
+    time (saturating or log growth), or Dieterich's state (log).
 ``accel-body`` (accel-sign)
     kinetic friction higher while the *body* accelerates (paper 000's wording):
     mu x (1 + amp tanh(a_f/a0)), a_f the body's acceleration along the sliding
@@ -78,6 +86,7 @@ KELVIN = 273.15
 # phenomenon, a mechanics parameter, or None (nothing in the catalog: must not be claimed).
 PHENOMENON = {
     "stick-log": "stick-time",
+    "stick-creep": "stick-time",
     "accel-body": "accel-sign",
     "arrhenius": "temperature",
     "belt-drive": "belt-speed",
@@ -289,6 +298,7 @@ class TableDrive:
 # brake rig; the drum's own defaults are in DRUM_DEFAULTS.
 EFFECTS: dict[str, tuple[tuple[str, ...], dict[str, float]]] = {
     "stick-log": (("b",), {"b": 0.1, "theta": 0.01, "Dc": 1e-3}),
+    "stick-creep": (("b",), {"b": 0.1, "theta": 0.05, "v_c": 1e-3, "L_r": 1e-3}),
     "accel-body": (("amp",), {"amp": 0.1, "a0": 2.0, "tau_a": 2e-3}),
     "arrhenius": (("E",), {"E": 2000.0, "T_ref_C": float("nan")}),
     "belt-drive": (("tau", "ripple"), {"tau": 0.3, "ripple": 0.05, "wavelength": 0.9, "zeta": 0.7, "h2": 0.3}),
@@ -359,7 +369,7 @@ def parse_effect(text: str, rig: str = "brake-2dof") -> Effect:
         defaults.update({"torque": 0.0, "mu1": 0.0})
     defaults.update(given)
     p = defaults
-    positive = {"theta", "Dc", "a0", "tau_a", "wavelength", "q0", "n", "tau_q", "eps", "zeta"}
+    positive = {"theta", "Dc", "v_c", "L_r", "a0", "tau_a", "wavelength", "q0", "n", "tau_q", "eps", "zeta"}
     for k in positive & p.keys():
         if not p[k] > 0:
             raise SpecError(f"--effect {text!r}: {k} must be > 0")
@@ -384,6 +394,8 @@ class EffectSet:
             if any(o.name == e.name for o in out):
                 raise SpecError(f"--effect {e.name}: given twice")
             out.append(e)
+        if {"stick-log", "stick-creep"} <= {e.name for e in out if not e.is_neutral()}:
+            raise SpecError("--effect stick-log and stick-creep: one stick-time clock at a time")
         return cls(out, rig)
 
     def get(self, name: str) -> dict[str, float]:
@@ -429,6 +441,19 @@ def dieterich_factor(theta_s: float, b: float, theta: float) -> float:
 def dieterich_rate(theta_s: float, v_rel: float, dc: float) -> float:
     """Dieterich's aging law: d theta/dt = 1 - |V| theta / Dc."""
     return 1.0 - abs(v_rel) * theta_s / dc
+
+
+def creep_clock_rate(t_c: float, v_rel: float, v_c: float, l_r: float) -> float:
+    """The creep clock: d t_c/dt = phi - (1 - phi) |V| t_c / L_r, phi = 1/(1 + (V/v_c)^2): it runs while the
+    contact creeps and is wiped out over a slip of a few L_r."""
+    phi = lorentz_stuck(v_rel, v_c)
+    return phi - (1.0 - phi) * abs(v_rel) * t_c / l_r
+
+
+def creep_clock_steady(v: float, v_c: float, l_r: float) -> float:
+    """The creep clock in steady sliding at speed v (its rate 0): phi L_r / ((1 - phi) |v|)."""
+    phi = lorentz_stuck(v, v_c)
+    return phi * l_r / ((1.0 - phi) * abs(v))
 
 
 def power_rate_factor(q: float, g: float, q0: float, n: float) -> float:
