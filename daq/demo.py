@@ -27,14 +27,16 @@ from daq.daemon.service import BenchProgress, run_sim_ramp
 from daq.errors import InputError
 from daq.io.jsonout import dumps_json
 from daq.io.loading import load_data
-from daq.models.compare import ERROR_DEFINITION, compare
-from daq.models.diagnose import add_command, diagnose
-from daq.models import design
+from daq.models.candidates import add_command
+from daq.models.design import proposal
+from daq.models.design.programmes import write_programme
+from daq.models.diagnosis.compare import ERROR_DEFINITION, compare
+from daq.models.diagnosis.diagnose import diagnose
+from daq.models.diagnosis.margins import MIN_EXCESS
+from daq.models.diagnosis.report import diagnosis_json
 from daq.models.figures import compare_figure, diagnose_figure, history_figure, proposal_figure, spectrogram_figure
-from daq.models.margins import MIN_EXCESS
-from daq.models.multi_session import MultiSession
-from daq.models.programmes import write_programme
-from daq.models.session import Session
+from daq.models.fit.multi_session import MultiSession
+from daq.models.fit.session import Session
 from daq.models.spec import save_model, seed_model
 from daq.ramps import constant_ramp, seed_ramp
 
@@ -104,13 +106,13 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
         folder = out / f"{rnd}-{tag}"
         _report(session, diag.base, res, drawn, folder)
         diagnose_figure(session, diag, folder / "diagnose.png")
-        (folder / "diagnose.json").write_text(dumps_json(diag.as_json(session)))
+        (folder / "diagnose.json").write_text(dumps_json(diagnosis_json(diag, session)))
         save_model(diag.base.model, folder / "model-fitted.toml")
         history.append(_entry(res))
         added = [c for step in diag.sequence for c in step.cands] if diag.found else []
         rounds.append({"model": res["model"], "error": res["error"], "noise_floor": res["noise_floor"],
                        "worst_regime": res["worst_regime"], "diagnosed": [c.label for c in added],
-                       "reduction": diag.as_json(session)["final_reduction"] if diag.found else None})
+                       "reduction": diagnosis_json(diag, session)["final_reduction"] if diag.found else None})
         _line(f"3/4 round {rnd}: error {res['error']:.3g} m on held-out windows (noise floor {res['noise_floor']:.3g} m), "
               f"worst regime '{res['worst_regime']}'. {diag.summary}")
         if not added:
@@ -181,7 +183,7 @@ def run_closed_loop(out: str | Path, hidden: str = LOOP_HIDDEN, seed: int = 1, b
         session = MultiSession.open(runs, model, max_windows=None) if len(runs) > 1 else Session.open(runs[0], model)
         _line(f"{len(runs) + len(steps)} diagnosing {' + '.join(p.name for p in runs)} together, one model")
         diag = diagnose(session, model, progress=lambda m: _line("    " + m), deliver=False)
-        res = diag.as_json(session)
+        res = diagnosis_json(diag, session)
         _line(f"    {diag.summary}")
         step = {"runs": [str(p) for p in runs], "named": res["named"], "undecided": res["undecided"],
                 "error": res["error"], "noise_floor": res["noise_floor"], "final_error": res["final_error"]}
@@ -192,17 +194,17 @@ def run_closed_loop(out: str | Path, hidden: str = LOOP_HIDDEN, seed: int = 1, b
         steps.append(step)
         if len(runs) > max_runs:
             break
-        rivals, why = design.rivals_from(session, model, diag, lambda m: _line("    " + m))
+        rivals, why = proposal.rivals_from(session, model, diag, lambda m: _line("    " + m))
         _line(f"    {why}")
         if not rivals:
             break
         folder = out / f"proposal-{len(runs)}"
         folder.mkdir(exist_ok=True)
-        prop = design.propose(session, rivals, budget_s, 2 * LOOP_FIRST_S, design.drive_speed(session),
+        prop = proposal.propose(session, rivals, budget_s, 2 * LOOP_FIRST_S, proposal.drive_speed(session),
                               lambda m: _line("    " + m))
         ramp_file = write_programme(prop.best.programme, folder / "next.toml")
         proposal_figure(session, prop, folder / "next.png")
-        (folder / "next.json").write_text(dumps_json(design.as_json(session, prop)))
+        (folder / "next.json").write_text(dumps_json(proposal.as_json(session, prop)))
         question = {"rivals": [r.label for r in rivals], "why": why, "programme": prop.best.programme.name,
                     "predicted_z": prop.best.z, "predicted_decided": prop.best.decided(),
                     "scored": len(prop.scored), "family_size": prop.family_size}
@@ -242,7 +244,7 @@ def _show():
 
 def _how_it_fell(question: dict, res: dict) -> str:
     named = res["named"]
-    rivals = [r for r in question["rivals"] if r != design.NOTHING]
+    rivals = [r for r in question["rivals"] if r != proposal.NOTHING]
     if res["undecided"]:
         between = "; ".join(" or ".join(u["between"]) for u in res["undecided"])
         return f"the question fell part of the way: named {', '.join(named) or 'nothing'}, still undecided: {between}"
@@ -254,5 +256,5 @@ def _how_it_fell(question: dict, res: dict) -> str:
     if hit:
         return f"the question fell to {', '.join(hit)} (named: {', '.join(named)})"
     other = [n for n in named if n not in hit]
-    return (f"the question fell to '{design.NOTHING}': none of {', '.join(rivals)} is there at the strength tested"
+    return (f"the question fell to '{proposal.NOTHING}': none of {', '.join(rivals)} is there at the strength tested"
             + (f"; the proposed run showed what the first could not: {', '.join(other)}" if other else ""))

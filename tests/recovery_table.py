@@ -52,10 +52,11 @@ from refsim import make as refsim  # noqa: I001
 
 from daq.cli.main import main as daq
 from daq.io.loading import load_data
-from daq.models.diagnose import diagnose
-from daq.models.session import Session
+from daq.models.diagnosis.diagnose import diagnose
+from daq.models.fit.session import Session
 from daq.models.spec import load_model, rig_config_for
-from daq.models.windows import Windows
+from daq.models.fit.windows import Windows
+from daq.models.diagnosis.report import diagnosis_json
 
 RAMPS = {"A": (0.17, 45.0, 40.0), "B": (0.25, 60.0, 52.0),  # V0 [m/s], Tmax [s], record length [s]: to near stop
          "C": (0.17, 45.0, 20.0)}  # short: the suite's subset (tests/test_recovery.py)
@@ -318,7 +319,7 @@ def perturbed_diagnosis(data: Path, model_path: Path, rig: str, scale: float = 1
         w = s.win
         s.win = Windows(w.starts[::-1].copy(), w.length, w.held_out[::-1].copy(),
                         None if w.transient is None else w.transient[::-1].copy())
-    return diagnose(s, model, workers=workers, deliver=False).as_json(s)
+    return diagnosis_json(diagnose(s, model, workers=workers, deliver=False), s)
 
 
 def row(o: Outcome) -> str:
@@ -343,9 +344,9 @@ HEADER = ("| rig | case | rate | hidden (refsim form) | named (in order) | margi
 
 
 def _on_dask(todo: list[Case], work: Path, scheduler: str | None) -> list[Outcome]:
-    """The cases fanned out by the archive's engine (daq/models/archive_jobs.py: the numba cache warmed first, lost
+    """The cases fanned out by the archive's engine (daq/models/archive/jobs.py: the numba cache warmed first, lost
     workers' cases run again, rows printed as they finish), returned in the table's order."""
-    from daq.models.archive_jobs import engine, fan_out, warm_numba
+    from daq.models.archive.jobs import engine, fan_out, warm_numba
     from daq.models.spec import seed_model
 
     def say(msg: str) -> None:

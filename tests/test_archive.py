@@ -31,8 +31,8 @@ from daq.cli.main import main as daq
 from daq.config import load_rig
 from daq.io.archive import CATALOG_NAME, Catalog, describe_file, open_entry
 from daq.io.interchange import write_recording
-from daq.models import archive_jobs
-from daq.models.archive_jobs import DiagnoseRow, JobReport, match_models, run_diagnoses
+from daq.models.archive import jobs as archive_jobs
+from daq.models.archive.jobs import DiagnoseRow, JobReport, match_models, run_diagnoses
 from daq.models.spec import Model, seed_model
 from daq.sim.run import simulate
 

@@ -18,8 +18,8 @@ from helpers import make_recordings
 
 from daq.cli.main import main as daq
 from daq.io.archive import Catalog
-from daq.models import archive_jobs
-from daq.models.archive_jobs import ResultRow, code_version, match_models, run_job
+from daq.models.archive import jobs as archive_jobs
+from daq.models.archive.jobs import ResultRow, code_version, match_models, run_job
 from daq.models.spec import load_model, parse_model, parse_toml, save_model, seed_model
 
 # two short brake records and one drum record at 100 Hz: a compare or fit of each takes about a second

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import G, K, M, slider_compare, slider_rig
 
 from daq.config import load_rig, rig_path
 from daq.io.interchange import Recording, write_csv
-from daq.models.data import is_programme, rig_data, stuck_by_hysteresis
-from daq.models.session import Session
+from daq.models.fit.data import is_programme, rig_data
+from daq.models.fit.data_belt import stuck_by_hysteresis
+from daq.models.fit.session import Session
 from daq.models.spec import save_model, seed_model
 from daq.physics import beltndof
 from daq.physics.effects import E
@@ -28,9 +28,10 @@ from daq.sim.rigs import make_sim
 from daq.sim.run import simulate as simulate_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim)
-from refsim import belt as ref_belt, effects as ref_effects  # noqa: E402
-from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
-
+from refsim import belt as ref_belt  # noqa: E402
+from refsim import effects as ref_effects
+from refsim.slider import Slider  # noqa: E402
+from refsim.slider import simulate as slider_simulate
 
 
 @pytest.mark.slow
@@ -253,7 +254,7 @@ def test_a_500_hz_slider_window_that_starts_stuck_estimates_its_start_position(t
     from its samples, its held-out error is the noise (1.00 sigma); from the smoothed start sample 4.8 sigma (a
     stuck start's position sets the first break-away, and so the phase of every cycle after it). That made the
     aging-free seed model, fitted, beat the truth and "rule out" the aging a proposed run had to look for."""
-    import daq.models.data as data
+    import daq.models.fit.data as data
     from daq.models.candidates import candidates_for
 
     rate, b = 500.0, 0.05

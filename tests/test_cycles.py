@@ -30,7 +30,7 @@ from daq.estimation.online import OnlineCfg, OnlineEstimator
 from daq.estimation.regime import classify
 from daq.io.runfile import RunWriter
 from daq.io.stream_format import StreamMeta
-from daq.models.cycle_features import load_cycles, side_by_side, summary
+from daq.models.fit.cycle_features import load_cycles, side_by_side, summary
 from daq.sim.run import simulate
 from daq.streaming.bus import Publisher
 from daq.streaming.recorder import Recorder, RecorderCfg

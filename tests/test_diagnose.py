@@ -1,7 +1,7 @@
 """Diagnose finds the hidden effect, and the whole loop works from the command line on a foreign CSV.
 
 The full recovery table (every hidden effect of the issue at 1 kHz and 100 Hz) is
-`python -m daq.models.recovery`; these tests run the cases that exercise the
+`python -m daq.models.diagnosis.recovery`; these tests run the cases that exercise the
 hardest paths within the suite's time budget.
 """
 
@@ -20,13 +20,14 @@ import pytest
 
 from daq.config import load_rig
 from daq.models.candidates import Candidate, candidates_for
-from daq.models.diagnose import (MIN_T, diagnose, fit_extensions, own_share, passes, score, users_fit, windows_needed,
-                                  z_attainable)
-from daq.models.screening import Column, Linearisation, gain_past_bound, predicted_gain
-from daq.models.selection import PAIR_TOP, SCREEN_TIE, further_down, pairs_to_fit, past_bound, to_fit
-from daq.models.session import Session
+from daq.models.diagnosis.diagnose import diagnose, fit_extensions, users_fit
+from daq.models.diagnosis.report import diagnosis_json
+from daq.models.diagnosis.scoring import MIN_T, own_share, passes, score, windows_needed, z_attainable
+from daq.models.diagnosis.screening import Column, Linearisation, gain_past_bound, predicted_gain
+from daq.models.diagnosis.selection import PAIR_TOP, SCREEN_TIE, further_down, pairs_to_fit, past_bound, to_fit
+from daq.models.diagnosis.verdict import delivered_fit
+from daq.models.fit.session import Session
 from daq.models.spec import remove_effect, save_model, seed_model
-from daq.models.verdict import delivered_fit
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
 
@@ -124,7 +125,7 @@ def test_seed_model_without_normal_load_gets_it_back_and_clean_data_gets_nothing
     assert d.found and d.candidates[0].effect == "normal-load" and d.candidates[0].reduction >= 0.7
     d = diagnose(s, seed_model("brake-2dof"), base=None)
     assert not d.found, d.summary
-    j = d.as_json(s)
+    j = diagnosis_json(d, s)
     assert j["missing_effect_found"] is False and j["sequence"] == []
     # every candidate is listed once: each lacking catalog effect in each of its forms, and the mechanics
     labels = sorted(c["label"] for c in j["candidates"])
@@ -238,7 +239,7 @@ def test_a_missing_normal_load_is_fitted_however_the_score_test_ranks_it():
     d = diagnose(s, remove_effect(seed_model("brake-2dof"), "normal-load"), progress=lines.append)
     fitted = next(x for x in lines if x.startswith("screened")).split("; fitting ")[1]
     assert "normal-load" in fitted.split(", "), fitted
-    j = d.as_json(s)
+    j = diagnosis_json(d, s)
     assert j["named"] == ["normal-load"] and j["undecided"] == [], d.summary
     assert j["final_reduction"] >= 0.9
 
@@ -305,7 +306,7 @@ def test_a_record_whose_every_window_got_worse_weighs_by_its_change_not_minus_in
     outweighed any other record (the closed-loop demo, 2026-11-29: a lag at constant speed, 12 windows 0.6 noise
     variances worse each, sank the decelerating run's z 3.67 and the lag was not taken). The z comes from the other
     tail instead: the mirror image of the same windows improving, so a record weighs by the change it carries."""
-    from daq.models.diagnose import consistency
+    from daq.models.diagnosis.scoring import consistency
 
     worse = -np.linspace(0.5, 0.7, 12)
     assert consistency(worse) == pytest.approx(-consistency(-worse), rel=1e-12) == pytest.approx(-z_attainable(12))
@@ -341,7 +342,7 @@ def test_serial_and_parallel_fits_are_the_same_fits(brake_cfg, monkeypatch):
     for (c,) in tasks:
         extended = c.apply(extended, "model add")
     forked = s.fit(extended)
-    monkeypatch.setattr("daq.models.forked.can_fork", lambda: False)
+    monkeypatch.setattr("daq.models.fit.forked.can_fork", lambda: False)
     s._own_fits.clear()
     alone = s.fit(extended)
     assert alone is not forked and alone.values == forked.values and alone.fit.cost == forked.fit.cost

@@ -15,10 +15,12 @@ import pytest
 from daq.cli.main import main
 from daq.config import load_rig
 from daq.io.interchange import write_h5
-from daq.models.compare import where_it_lives
-from daq.models.diagnose import correlations, diagnose, fit_error
-from daq.models.multi_session import RECORD_KEY, MultiSession
-from daq.models.session import Session
+from daq.models.diagnosis.compare import where_it_lives
+from daq.models.diagnosis.diagnose import diagnose, fit_error
+from daq.models.diagnosis.report import diagnosis_json
+from daq.models.diagnosis.scoring import correlations
+from daq.models.fit.multi_session import RECORD_KEY, MultiSession
+from daq.models.fit.session import Session
 from daq.models.spec import add_effect, rig_config_for, save_model, seed_model
 from daq.ramps import ramp_table, seed_ramp
 from daq.sim.effectset import parse_effect
@@ -57,8 +59,8 @@ def test_one_record_is_its_session(brake_model):
     assert f.values == g.values and f.fit.cost == g.fit.cost
     assert all(np.array_equal(f.ms_held[k], g.ms_held[k]) for k in f.ms_held)
     assert one.noise_floor(f) == multi.noise_floor(g)
-    a = diagnose(one, model, base=f, workers=1).as_json(one)
-    b = diagnose(multi, model, base=g, workers=1).as_json(multi)
+    a = diagnosis_json(diagnose(one, model, base=f, workers=1), one)
+    b = diagnosis_json(diagnose(multi, model, base=g, workers=1), multi)
     assert a["named"] == b["named"] and a["named"]  # (accel-sign at this strength is found in 8 s at 100 Hz)
     assert a == b  # every key and number; no per-record section for one record
 

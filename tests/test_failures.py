@@ -25,11 +25,11 @@ from daq.config import load_rig
 from daq.errors import NumericalFailure
 from daq.io.archive import Catalog
 from daq.io.interchange import write_recording
-from daq.models import linalg, lm
-from daq.models.archive_jobs import match_models, run_diagnoses
+from daq.models.archive.jobs import match_models, run_diagnoses
 from daq.models.candidates import candidates_for
-from daq.models.session import Session
-from daq.models.shooting import Problem
+from daq.models.fit import linalg, lm
+from daq.models.fit.session import Session
+from daq.models.fit.shooting import Problem
 from daq.models.spec import save_model, seed_model
 from daq.physics.catalog import VB_TAU_MIN
 from daq.ramps import constant_ramp, ramp_table
@@ -199,8 +199,9 @@ def test_residuals_are_capped_so_no_difference_overflows():
 def test_a_command_that_ends_in_a_traceback_is_logged_for_the_suites_scan(tmp_path, monkeypatch, aging):
     """The scan the suite ends with (conftest.pytest_sessionfinish) reads what daq.cli.main logs: here a diagnosis
     made to raise a bare ValueError (a defect: the containment above catches it inside fits, not here)."""
-    from daq.cli import main as cli
     from helpers import logged_tracebacks
+
+    from daq.cli import main as cli
 
     log = tmp_path / "tracebacks.jsonl"
     monkeypatch.setenv(cli.TRACEBACK_LOG, str(log))  # (not the suite's own log: this one is meant to be found)

@@ -206,6 +206,42 @@ def test_no_circle_of_imports_inside_a_package():
     assert not any(circles.values()), "\n".join(f"{pkg}: {' <-> '.join(c)}" for pkg, cs in circles.items() for c in cs)
 
 
+# daq/models' parts, bottom to top (its __init__ says what each holds): a module imports only its own part and the
+# ones below. The model files are the bottom; figures draw what any part computes.
+MODEL_PARTS: list[set[str]] = [
+    {"daq.models", "daq.models.spec", "daq.models.candidates", "daq.models.user_effects"},
+    {"daq.models.fit"},
+    {"daq.models.diagnosis"},
+    {"daq.models.design"},
+    {"daq.models.archive"},
+    {"daq.models.figures"},
+]
+MODEL_PART = {part: i for i, layer in enumerate(MODEL_PARTS) for part in layer}
+
+
+def _model_part(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:3])
+
+
+def test_the_models_parts_import_only_downwards():
+    """fit below diagnosis below design below archive: a fit knows nothing of what judges it (issue 57)."""
+    graph = {f"daq.{m}": {f"daq.{d}" for d in deps} for m, deps in import_graph(ROOT / "daq" / "models").items()}
+    unknown = {_model_part(m) for m in graph} - set(MODEL_PART)
+    assert not unknown, f"add to MODEL_PARTS: {sorted(unknown)}"
+    bad = [f"{mod} imports {dep}" for mod, deps in graph.items() for dep in deps
+           if MODEL_PART[_model_part(dep)] > MODEL_PART[_model_part(mod)]]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_module_of_the_models_is_over_600_lines():
+    """A module a newcomer reads in one sitting (issue 57): daq/models held 29 modules side by side, three of them
+    650-830 lines, before its parts were packages."""
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / "daq" / "models").rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 600}
+    assert not long, long
+
+
 def test_the_circle_detector_finds_a_circle(tmp_path: Path):
     files = {
         "__init__.py": "from . import a\n",  # the package imports its module: not a circle (a -> pkg is implicit)

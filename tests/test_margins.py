@@ -1,4 +1,4 @@
-"""The margins' bootstrap (daq/models/margins.py): what it must do whatever the data, derived by hand."""
+"""The margins' bootstrap (daq/models/diagnosis/margins.py): what it must do whatever the data, derived by hand."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from daq.models.candidates import Candidate
-from daq.models.margins import LEVEL, Margin, margin, resamples
-from daq.models.verdict import Verdict
+from daq.models.diagnosis.margins import LEVEL, Margin, margin, resamples
+from daq.models.diagnosis.verdict import Verdict
 
 
 def test_a_model_against_itself_has_no_margin_and_is_not_decided():

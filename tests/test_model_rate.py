@@ -16,8 +16,8 @@ import pytest
 
 from daq.config import load_rig
 from daq.io.interchange import Recording
-from daq.models.data import rig_data
-from daq.models.session import Session
+from daq.models.fit.data import rig_data
+from daq.models.fit.session import Session
 from daq.models.spec import seed_model
 from daq.physics import beltndof
 from daq.physics.effects import E

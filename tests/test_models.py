@@ -9,8 +9,8 @@ from scipy.optimize import lsq_linear
 
 from daq.config import load_rig
 from daq.errors import InputError
-from daq.models.lm import bounded_step
-from daq.models.session import Session
+from daq.models.fit.lm import bounded_step
+from daq.models.fit.session import Session
 from daq.models.spec import add_effect, dumps, load_model, remove_effect, save_model, seed_model
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
@@ -95,7 +95,7 @@ def test_at_100_hz_free_start_positions_bring_a_perfect_model_to_the_sensor_nois
     """The true model on noisy 100 Hz data: with the start positions estimated from each window
     (start sample included) its error is about sigma (0.92-1.01 sigma over seeds 3-6); started from
     the raw sample 1.11-1.18 sigma, an offset that buried stick-time's trace at 100 Hz."""
-    import daq.models.data as data
+    import daq.models.fit.data as data
     from daq.sim.run import simulate
 
     rec = simulate(brake_cfg, rate=100.0, seed=3, duration=20.0)

@@ -1,4 +1,4 @@
-"""The next experiment's candidates (daq/models/programmes.py): every programme a ramp file the daemon's runner takes
+"""The next experiment's candidates (daq/models/design/programmes.py): every programme a ramp file the daemon's runner takes
 as it is, within the rig's limits and the run's length, and the family varying what separates the rival
 explanations (accelerations for a brake's ramps, stick times for a slider at one speed)."""
 
@@ -10,7 +10,7 @@ import pytest
 from daq.config import load_rig
 from daq.daemon.ramp_runner import RampRunner
 from daq.errors import InputError
-from daq.models.programmes import MIN_SLIDE_S, family, write_programme
+from daq.models.design.programmes import MIN_SLIDE_S, family, write_programme
 from daq.ramps import load_ramp
 
 CASES = (  # rig, the record's drive speed [m/s], the longest run [s]

@@ -1,4 +1,4 @@
-"""`daq propose` (daq/models/design.py): the run under which rival explanations of a record differ most.
+"""`daq propose` (daq/models/design/proposal.py): the run under which rival explanations of a record differ most.
 
 A brake record at one constant belt speed cannot tell velocity strengthening (friction rising with speed) from a
 higher friction level: the proposal must be a programme that changes the speed, must predict that it decides, and
@@ -15,10 +15,10 @@ import pytest
 from daq.cli.main import main as daq
 from daq.config import load_rig
 from daq.io.interchange import write_recording
-from daq.models import design
 from daq.models.candidates import parse_candidate
-from daq.models.programmes import family
-from daq.models.session import Session
+from daq.models.design import proposal
+from daq.models.design.programmes import family
+from daq.models.fit.session import Session
 from daq.models.spec import load_model, save_model, seed_model
 from daq.ramps import constant_ramp, load_ramp, ramp_table
 from daq.sim.run import simulate
@@ -51,7 +51,7 @@ def test_a_record_at_one_speed_gets_a_run_that_changes_the_speed(record, capsys)
     rival = next(r for r in result["rivals"] if r["label"] == "velocity-strengthening")
     assert rival["held_at_generic_strength"] == "effects.velocity-strengthening.D"
     assert rival["values"] == {} or "effects.velocity-strengthening.D" not in rival["values"]
-    nothing = next(r for r in result["rivals"] if r["label"] == design.NOTHING)
+    nothing = next(r for r in result["rivals"] if r["label"] == proposal.NOTHING)
     assert rival["error_on_record"] < 1.2 * nothing["error_on_record"]
     # the proposal changes the speed, decides, and beats the record's own programme by far
     assert np.ptp(rv) > 0.01 or abs(rv[0] - V0) > 0.01, result["programme"]
@@ -60,29 +60,29 @@ def test_a_record_at_one_speed_gets_a_run_that_changes_the_speed(record, capsys)
     own = scored[f"hold {V0:g} m/s for 10 s"]
     assert result["separation"] > 3 * own["separation"], (result["separation"], own)
     assert result["scored"] and len(result["scored"]) == result["family_size"] >= 20
-    assert {p["truth"] for p in result["pairs"]} == {design.NOTHING, "velocity-strengthening"}
+    assert {p["truth"] for p in result["pairs"]} == {proposal.NOTHING, "velocity-strengthening"}
 
 
 @pytest.mark.slow
 def test_a_rival_equal_to_the_truth_is_never_separated_and_the_truth_sits_at_its_noise(record):
     model = load_model(record / "m.toml")
     s = Session.open(record / "a.h5", model)
-    nothing = design.Rival(design.NOTHING, s.fit(model))
-    twin = design.Rival("the same model", nothing.fitted)
+    nothing = proposal.Rival(proposal.NOTHING, s.fit(model))
+    twin = proposal.Rival("the same model", nothing.fitted)
     progs = family(s.cfg, V0, 10.0)
     for prog in (progs[0], progs[-1]):
-        rec = design.predicted(s, nothing, prog)
-        pair = design.score_pair(s, nothing, twin, rec)
+        rec = proposal.predicted(s, nothing, prog)
+        pair = proposal.score_pair(s, nothing, twin, rec)
         assert pair.z == 0.0 and pair.separation == 0.0 and pair.n_held >= 5
         # the truth on its own predicted record: mean square error at the record's noise level (start values fitted)
-        p = Session(rec, "(predicted)", s.cfg, max_windows=design.MAX_WINDOWS, window_s=(s.win.length - 1) / s.m.rate)
+        p = Session(rec, "(predicted)", s.cfg, max_windows=proposal.MAX_WINDOWS, window_s=(s.win.length - 1) / s.m.rate)
         p.m.sigma = dict(s.m.sigma)
         cold, ms = p.held_out(p.problem(model), nothing.fitted.values)
         per_sigma2 = np.mean(p.weighted(ms, p.win.select(True))) / len(ms)
         assert 0.5 < per_sigma2 < 1.5, per_sigma2
         # scored, the start fits begin at the states the truth's own simulation passed through (not the data's
         # estimate): the same optimum (the CPU it saves over a family: `daq bench propose`)
-        truth = design._TruthRecord(s, nothing, rec)
+        truth = proposal._TruthRecord(s, nothing, rec)
         assert truth.near is not None and truth.near.shape == cold.start_values.shape
         warm, ms_warm = p.held_out(p.problem(model), nothing.fitted.values, near=truth.near)
         hw = p.win.select(True)

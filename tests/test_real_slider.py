@@ -25,10 +25,10 @@ import scipy.io
 from helpers import daq
 
 from daq.config import rig_path
-from daq.models.compare import where_it_lives
-from daq.models.cycle_features import PHASES
-from daq.models.diagnose import where_text
-from daq.models.session import Session
+from daq.models.diagnosis.compare import where_it_lives
+from daq.models.diagnosis.summary import where_text
+from daq.models.fit.cycle_features import PHASES
+from daq.models.fit.session import Session
 from daq.models.spec import load_model
 
 DATA = Path(__file__).resolve().parent / "data" / "real-slider"

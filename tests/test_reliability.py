@@ -23,7 +23,7 @@ from daq.daemon.control import ControlServer
 from daq.errors import InputError
 from daq.io.runfile import RunWriter, WriterCfg
 from daq.io.stream_format import BusEvent
-from daq.models.session import Session
+from daq.models.fit.session import Session
 from daq.models.spec import load_model
 from daq.streaming.recorder import Recorder, RecorderCfg
 

@@ -19,16 +19,17 @@ from scipy.optimize import least_squares
 
 from daq.config import load_rig
 from daq.io.interchange import Recording
-from daq.models import robust
-from daq.models.data import rig_data
-from daq.models.session import Session
+from daq.models.fit import robust
+from daq.models.fit.data import rig_data
+from daq.models.fit.session import Session
 from daq.models.spec import seed_model
 from daq.signals import _single_departures, impulsive_runs, timing_noise
 from daq.sim.run import simulate as simulate_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/ (for refsim)
 from refsim.make import generate, write  # noqa: E402
-from refsim.slider import Slider, simulate as slider_simulate  # noqa: E402
+from refsim.slider import Slider  # noqa: E402
+from refsim.slider import simulate as slider_simulate
 
 # ----------------------------------------------------------------------------- the loss
 

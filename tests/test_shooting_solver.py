@@ -1,6 +1,6 @@
-"""The multiple-shooting solver (daq/models/lm.py) on a toy objective, no rig: the joint fit and the per-window fit
+"""The multiple-shooting solver (daq/models/fit/lm.py) on a toy objective, no rig: the joint fit and the per-window fit
 reach the least-squares solution of a linear problem with the block structure of multiple shooting; a fork pool
-gets its work passed in (daq/models/forked.py). Decision record: docs/decisions/0041-models-core-as-a-solver.md."""
+gets its work passed in (daq/models/fit/forked.py). Decision record: docs/decisions/0041-models-core-as-a-solver.md."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from functools import partial
 
 import numpy as np
 
-from daq.models import forked, lm
+from daq.models.fit import forked, lm
 
 NW, L = 6, 20  # windows, samples per window
 

@@ -1,4 +1,4 @@
-"""`daq warm` (daq/models/warm.py): the kernels compiled once into the on-disk cache, so that a later process loads them
+"""`daq warm` (daq/models/fit/warm.py): the kernels compiled once into the on-disk cache, so that a later process loads them
 instead of compiling them again beside the others."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import sys
 import daq
 from numba.core.registry import CPUDispatcher
 from daq.sim import rigs
-from daq.models.warm import warm_kernels
+from daq.models.fit.warm import warm_kernels
 warm_kernels()
 dispatchers = {id(d): d for d in rigs._rk4_cache.values()}
 for name, module in list(sys.modules.items()):

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daq.models.compare import by_cycle_phase, loading, motion
-from daq.models.cycle_features import PHASES, cycle_phases, load_cycles
-from daq.models.diagnose import where_text
+from daq.models.diagnosis.compare import by_cycle_phase, loading, motion
+from daq.models.diagnosis.summary import where_text
+from daq.models.fit.cycle_features import PHASES, cycle_phases, load_cycles
 
 RATE = 2000.0
 LOAD_RATE = 1e-3  # [unit/s] the sawtooth is loaded at this rate while it sticks (the drive's speed, if stuck)

@@ -1,4 +1,4 @@
-"""Windows over a hole in the data (daq/models/windows.py, over_filled_spans): the loader fills a stream's hole with
+"""Windows over a hole in the data (daq/models/fit/windows.py, over_filled_spans): the loader fills a stream's hole with
 a straight line (daq/io/loading.py, uniform); a window whose drive bends inside such a line, or whose predicted
 signal is one, is flagged (neither fitted nor deciding), and a hole where the line is right is left alone."""
 
@@ -11,9 +11,9 @@ import h5py
 import numpy as np
 
 from daq.io.loading import load_data
-from daq.models.session import Session
+from daq.models.fit.session import Session
+from daq.models.fit.windows import DRIVE_SMOOTH_S
 from daq.models.spec import seed_model
-from daq.models.windows import DRIVE_SMOOTH_S
 
 LOADED_DEMO = Path(__file__).resolve().parent / "data" / "loaded-demo"
 

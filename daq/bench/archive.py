@@ -33,7 +33,7 @@ from pathlib import Path
 from daq.config import load_rig
 from daq.io.archive import Catalog
 from daq.io.interchange import write_recording
-from daq.models.archive_jobs import WORKER_ENV, warm_numba
+from daq.models.archive.jobs import WORKER_ENV, warm_numba
 from daq.models.spec import save_model, seed_model
 from daq.sim.run import simulate
 

@@ -24,8 +24,9 @@ import numpy as np
 
 from daq.config import load_rig
 from daq.errors import InputError
-from daq.models.diagnose import diagnose
-from daq.models.session import Session
+from daq.models.diagnosis.diagnose import diagnose
+from daq.models.diagnosis.report import diagnosis_json
+from daq.models.fit.session import Session
 from daq.models.spec import seed_model
 from daq.ramps import ramp_table, seed_ramp
 from daq.sim.effectset import parse_effect
@@ -74,7 +75,7 @@ def bench_diagnose(rig: str = "brake-2dof", progress=None) -> dict:
     session = Session(rec, "bench", cfg)
     d = diagnose(session, model, progress=progress)
     secs = time.perf_counter() - t0
-    j = d.as_json(session)
+    j = diagnosis_json(d, session)
     return {
         "benchmark": "diagnose",
         "rig": rig,

@@ -20,9 +20,9 @@ from pathlib import Path
 
 from daq.config import load_rig
 from daq.io.interchange import write_recording
-from daq.models import design
 from daq.models.candidates import parse_candidate
-from daq.models.session import Session
+from daq.models.design import proposal
+from daq.models.fit.session import Session
 from daq.models.spec import seed_model
 from daq.ramps import ramp_table, seed_ramp
 from daq.sim.effectset import parse_effect
@@ -49,10 +49,10 @@ def bench_propose(progress=None) -> dict:
         model = seed_model(RIG)
         s = Session.open(path, model)
         t0 = time.perf_counter()
-        rivals = design.rivals_for(s, model, [parse_candidate(c) for c in RIVALS], say)
+        rivals = proposal.rivals_for(s, model, [parse_candidate(c) for c in RIVALS], say)
         fit_s = time.perf_counter() - t0
-        v0 = design.drive_speed(s)
-        prop = design.propose(s, rivals, budget_s=1e9, max_run_s=MAX_RUN_S, v0=v0, say=say)
+        v0 = proposal.drive_speed(s)
+        prop = proposal.propose(s, rivals, budget_s=1e9, max_run_s=MAX_RUN_S, v0=v0, say=say)
         longest = max((p.programme for p in prop.scored), key=lambda p: p.duration_s)
         b = rivals[0].fitted.problem.builder
         vals = {**b.base_values, **rivals[0].fitted.values}
@@ -66,7 +66,7 @@ def bench_propose(progress=None) -> dict:
     n = len(prop.scored)
     return {
         "benchmark": "propose",
-        "case": f"{RIG} seed ramp {RECORD_S:g} s at {RATE:g} Hz, {HIDDEN} hidden; rivals: {design.NOTHING}, "
+        "case": f"{RIG} seed ramp {RECORD_S:g} s at {RATE:g} Hz, {HIDDEN} hidden; rivals: {proposal.NOTHING}, "
                 f"{', '.join(RIVALS)} ({len(rivals) * (len(rivals) - 1)} ordered pairs)",
         "programmes_scored": n,
         "family_size": prop.family_size,

@@ -76,7 +76,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_status(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba, dask and the models only when the command runs
-    from daq.models.archive_jobs import DONE, KINDS, status
+    from daq.models.archive.jobs import DONE, KINDS, status
 
     models = _models(args)
     with _catalog(args) as cat:
@@ -96,7 +96,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 def cmd_job(args: argparse.Namespace) -> int:
     """`daq archive diagnose`, `compare` and `fit`: one job, its kind from the command."""
     # heavy: numpy, scipy, numba, dask and the models only when the command runs
-    from daq.models.archive_jobs import match_models, run_job, verdict
+    from daq.models.archive.jobs import match_models, run_job, verdict
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")

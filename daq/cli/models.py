@@ -90,13 +90,13 @@ def cmd_model_remove(args: argparse.Namespace) -> int:
 
 def _session(args: argparse.Namespace):
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.session import Session
+    from daq.models.fit.session import Session
     from daq.models.spec import load_model
 
     model = load_model(args.model)
     data = args.data
     if isinstance(data, list) and len(data) > 1:  # several recordings of one rig, judged together (issue 26)
-        from daq.models.multi_session import MultiSession
+        from daq.models.fit.multi_session import MultiSession
 
         s = MultiSession.open(data, model, args.rig, loss=args.loss)  # every file loaded before the first line
         print(f"{args.command}: {' + '.join(data)} against {model.describe()}", file=sys.stderr)
@@ -164,9 +164,9 @@ def _append_history(path: Path, res: dict) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.compare import compare
+    from daq.models.diagnosis.compare import compare
+    from daq.models.diagnosis.report import compare_text
     from daq.models.figures import compare_figure, cycles_figure, ringing_figure, spectrogram_figure
-    from daq.models.report import compare_text
     from daq.models.spec import save_model
 
     model, s = _session(args)
@@ -198,9 +198,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.diagnose import diagnose
+    from daq.models.diagnosis.diagnose import diagnose
+    from daq.models.diagnosis.report import diagnosis_json, diagnosis_text
     from daq.models.figures import diagnose_figure
-    from daq.models.report import diagnosis_json, diagnosis_text
 
     if args.workers is not None and args.workers < 1:  # checked before any work (issue 16: 0 and -3 were taken)
         raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")

@@ -23,13 +23,13 @@ MIN_RUN_S, MAX_RUN_S = 20.0, 60.0
 
 def cmd_propose(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models import design
     from daq.models.candidates import candidates_for, parse_candidate
-    from daq.models.diagnose import diagnose
+    from daq.models.design import proposal
+    from daq.models.design.programmes import Programme, write_programme
+    from daq.models.diagnosis.diagnose import diagnose
     from daq.models.figures import proposal_figure
-    from daq.models.programmes import Programme, write_programme
-    from daq.models.multi_session import MultiSession
-    from daq.models.session import Session
+    from daq.models.fit.multi_session import MultiSession
+    from daq.models.fit.session import Session
     from daq.models.spec import load_model
 
     out = Path(args.output)
@@ -51,11 +51,11 @@ def cmd_propose(args: argparse.Namespace) -> int:
     s = MultiSession.open(data, model, args.rig) if len(data) > 1 else Session.open(data[0], model, args.rig)
     print(f"propose: {' + '.join(data)} against {model.describe()}", file=sys.stderr)
     if given:
-        rs = design.rivals_for(s, model, given, say)
+        rs = proposal.rivals_for(s, model, given, say)
         why = f"rivals given: {', '.join(c.label for c in given)}"
     else:
         say("diagnosing first: the rivals are what the diagnosis leaves standing")
-        rs, why = design.rivals_from(s, model, diagnose(s, model, progress=say, deliver=False), say)
+        rs, why = proposal.rivals_from(s, model, diagnose(s, model, progress=say, deliver=False), say)
     say(why)
     if not rs:
         result = {"data": data, "programme": None, "reason": why, "decides": None}
@@ -65,15 +65,15 @@ def cmd_propose(args: argparse.Namespace) -> int:
         else:
             print(f"no run to propose: {why}")
         return 0
-    v0 = design.drive_speed(s)
+    v0 = proposal.drive_speed(s)
     max_run = args.max_run_s or min(MAX_RUN_S, max(MIN_RUN_S, 2.0 * float(s.m.t[-1] - s.m.t[0])))
     for r in rs:
         say(f"{r.label}: {r.error(s):.4g} {s.m.units[s.primary]} on the record"
             + (f" ({r.fixed} held at a generic strength: the record cannot tell it from nothing)" if r.fixed else ""))
-    prop = design.propose(s, rs, math.inf if args.budget is None else args.budget, max_run, v0, say)
+    prop = proposal.propose(s, rs, math.inf if args.budget is None else args.budget, max_run, v0, say)
     best: Programme = prop.best.programme
     write_programme(best, out)
-    result = design.as_json(s, prop)
+    result = proposal.as_json(s, prop)
     result["output"] = str(out)
     result["reason"] = why
     figure = out.with_suffix(".png")

@@ -1,4 +1,4 @@
-"""``daq warm``: compile the numerical kernels into the on-disk cache (daq/models/warm.py says why).
+"""``daq warm``: compile the numerical kernels into the on-disk cache (daq/models/fit/warm.py says why).
 
 Heavy modules are imported inside the command (``# heavy``): `daq --help` imports every cli module.
 """
@@ -11,7 +11,7 @@ import time
 
 
 def cmd_warm(args: argparse.Namespace) -> int:
-    from daq.models.warm import warm_kernels  # heavy: numba, scipy, the models
+    from daq.models.fit.warm import warm_kernels  # heavy: numba, scipy, the models
 
     t0 = time.perf_counter()
     warm_kernels(lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))

@@ -28,7 +28,7 @@ from .regime import switch_distance, switch_positions
 class RunningLawFit(Closed):
     """One fit of the law over one window of the online estimator: values, standard errors, quality.
 
-    (Not the model fit of daq/models/shooting.py, whose result is a ShootingFit.)
+    (Not the model fit of daq/models/fit/shooting.py, whose result is a ShootingFit.)
     """
 
     model_config = ConfigDict(frozen=True)

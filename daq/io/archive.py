@@ -10,7 +10,7 @@ recording stays valid wherever the file goes.
 
 Where the catalog lives: ``$DAQ_ARCHIVE`` if set, else the first ``daq-archive.sqlite`` in the data's folder or
 one of its parents, else a new one in the data's folder. Not on a network file system: SQLite's WAL needs shared
-memory on one host, which is why only the process that runs a job writes results (daq/models/archive_jobs.py).
+memory on one host, which is why only the process that runs a job writes results (daq/models/archive/jobs.py).
 
     from daq.io.archive import open_entry
     rec = open_entry("3fa2c1")                 # a hash prefix or a path: the recording, read when asked for

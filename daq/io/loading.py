@@ -110,6 +110,6 @@ def uniform(rec: Recording, source: str) -> Recording:
 
 def filled_spans(t: np.ndarray, filled: np.ndarray) -> list[list[float]]:
     """[first, last] time of each run of filled-in samples: where a model's channel is a straight line drawn
-    across a hole, not a measurement (windows over one are flagged, daq/models/windows.py)."""
+    across a hole, not a measurement (windows over one are flagged, daq/models/fit/windows.py)."""
     edges = np.diff(np.concatenate([[0], filled.astype(np.int8), [0]]))
     return [[float(t[a]), float(t[b - 1])] for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1))]

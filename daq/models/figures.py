@@ -14,10 +14,10 @@ from daq.io.png import save_png  # noqa: E402
 from daq.physics.contact import AUX  # noqa: E402
 from daq.signals import RING_PERIODS, paper_spectrogram, sg  # noqa: E402
 
-from . import robust  # noqa: E402
-from .compare import OUTLIER_SIGMAS, Drawn  # noqa: E402
-from .diagnose import MIN_STEP, MIN_T  # noqa: E402
-from .session import Fitted, Session  # noqa: E402
+from .diagnosis.compare import OUTLIER_SIGMAS, Drawn  # noqa: E402
+from .diagnosis.scoring import MIN_STEP, MIN_T  # noqa: E402
+from .fit import robust  # noqa: E402
+from .fit.session import Fitted, Session  # noqa: E402
 
 
 def _pick_windows(session: Session, n: int = 3) -> np.ndarray:
@@ -338,7 +338,7 @@ def proposal_figure(session: Session, prop, path: Path) -> None:
     """The proposed programme (top), each rival's noise-free prediction of the primary output under it (middle), and
     how far each rival is from "nothing more" in units of the record's noise (bottom); beside it every programme
     scored (separation against z, the proposal circled)."""
-    from .design import predicted  # the design imports this module's siblings; imported here, at call time
+    from .design.proposal import predicted  # the design imports this module's siblings; imported here, at call time
 
     best = prop.best
     primary = session.primary

@@ -17,16 +17,17 @@ from recovery_table import RAMPS, refsim
 
 from daq.cli.main import main as daq
 from daq.io.loading import load_data
-from daq.models import diagnose as D
 from daq.models.candidates import Candidate
-from daq.models.session import Session
+from daq.models.diagnosis import diagnose as D
+from daq.models.diagnosis.report import diagnosis_json
+from daq.models.fit.session import Session
 from daq.models.spec import load_model, rig_config_for
 
 K1 = (Candidate("mechanics", "k1_N_per_m"),)
 
 
 def _conclusion(d: D.Diagnosis, s: Session) -> tuple:
-    j = d.as_json(s)
+    j = diagnosis_json(d, s)
     return j["missing_effect_found"], sorted(j["named"]), j["undecided"], round(j["final_reduction"], 6)
 
 

@@ -10,15 +10,15 @@ least_squares, block-sparse Jacobian, soft-L1 loss. The order of the steps (f_s 
 scan of the levels the data pass through, alpha_drop from a grid, then the kinetic
 part, then everything, then refits) is belt_law.py's.
 
-Why not daq/models/shooting.py (multiple shooting, the models' fitter): it answers another
+Why not daq/models/fit/shooting.py (multiple shooting, the models' fitter): it answers another
 question. Since 2026-11-25 belt-ndof is in the model loop (models/data.py BeltData, decision
 21: a window's hybrid start from the data, the static level from the model's law and
 effects); this fitter identifies the law itself with a free break-away level per slip
 window, which the models' fitter does not have. Measured 2026-11-24 (before BeltData) on the set of
 tests/test_paper000.py (six one-mass records, 6 s at 250 Hz, seeds 0-5), with
-scripts that call this package, daq.models.data and daq.sim.rigs.BeltSim directly:
+scripts that call this package, daq.models.fit.data and daq.sim.rigs.BeltSim directly:
 
-- (then) No belt-ndof data layer: ``daq.models.data.rig_data`` on the belt-ndof config
+- (then) No belt-ndof data layer: ``daq.models.fit.data.rig_data`` on the belt-ndof config
   raised "model fitting is implemented for brake-2dof, drum-pendulum, not belt-ndof".
 - A window's start is a hybrid state, not only a state vector: Problem.shoot calls
   ``SimRig.advance(s0, ...)`` with one ``BeltSim.hybrid`` for all windows (built
@@ -111,7 +111,7 @@ def fit_output_error(runs: list[BeltRun], windows: list[SlipWindow], law0: np.nd
     wrong must not drag the law). The Jacobian is block-sparse (a window's residuals
     depend on the law and its own nuisances), so scipy differences all windows' own
     columns in 1 + (free velocities per window) passes. Why this and not
-    daq.models.shooting.Problem.fit: see the module docstring (measured).
+    daq.models.fit.shooting.Problem.fit: see the module docstring (measured).
     """
 
     sims = [WindowSimulator(r, n_sub=N_SUB) for r in runs]

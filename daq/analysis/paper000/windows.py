@@ -214,7 +214,7 @@ def _mean_load_rate(run: BeltRun, st: Stick, need: np.ndarray) -> float:
 class WindowSimulator:
     """Simulates slip windows with given law parameters through daq.physics.beltndof.simulate.
 
-    Why not a daq.sim.rigs.BeltSim (the SimRig daq.models.shooting drives): each window
+    Why not a daq.sim.rigs.BeltSim (the SimRig daq.models.fit.shooting drives): each window
     needs its own hybrid state (modes, slip directions, stick clocks, the break-away
     level) set at its start, and a SimRig carries one for all calls; output_error.py's
     docstring has the measured difference.

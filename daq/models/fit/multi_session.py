@@ -17,11 +17,11 @@ from daq.config import RigConfig
 from daq.errors import InputError
 from daq.io.interchange import Recording
 
+from ..spec import Model, drive_source
 from . import robust
 from .build import Builder
 from .session import Fitted, Session
 from .shooting import Problem, ShootingFit
-from .spec import Model, drive_source
 from .stacked import StackedProblem, StackedWindows
 from .windows import WINDOW_CYCLES, cycle_period, make_windows
 

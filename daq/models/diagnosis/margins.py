@@ -10,16 +10,21 @@ Why the score difference in shares of the base model's excess: it is the unit ev
 so a margin of 0.12 reads "it explains 12 points more of the excess than its rival". Each window's mean square
 is capped (diagnose.CAP_MS times the base model's median) as in the step scores, so no single window decides.
 
-Pure functions over arrays; the seed is fixed, so the same input gives the same margin on every machine.
+Pure functions over arrays; the seed is fixed, so the same input gives the same margin on every machine. A
+:class:`Verdict` holds one named effect's margins (judged by verdict.judge).
 Decision record: docs/decisions/0028-margins-and-honest-ties.md.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from daq.physics.catalog import CATALOG
+
+from ..candidates import Candidate
 
 N_BOOT = 2000  # resamples: the 5 % quantile's own spread is then ~0.5 % of the distribution's width
 LEVEL = 0.05  # one-sided: an explanation is preferred when its rival does better in fewer than 5 % of resamples
@@ -69,3 +74,44 @@ def margin(named: str, rival: str, ms_named: np.ndarray, ms_rival: np.ndarray, e
     point = (math.sqrt(b.mean()) - math.sqrt(a.mean())) / excess
     lo, hi = np.quantile(diff, [LEVEL, 1.0 - LEVEL])
     return Margin(named, rival, float(point), float(lo), float(hi), float(np.mean(diff <= 0.0)))
+
+
+NOTHING = "nothing more"  # the rival every named effect has: the model without it
+
+
+@dataclass
+class Verdict:
+    """A member of the final model and how firmly the held-out windows prefer it: over the model without it
+    (margins[0]) and over each plausible rival refitted in its place; over its phenomenon's other forms."""
+
+    cand: Candidate
+    margins: list[Margin]
+    forms: list[Margin] = field(default_factory=list)  # a rival form that too reaches the noise floor is no
+    # decision, however consistent its small difference (seen: 1.3x steps at 1 kHz, both laws at the floor, the
+    # bootstrap's bound +0.00x; `daq analyse rsf` asks 10 noise variances of an event for the same call)
+
+    @property
+    def needed(self) -> bool:
+        return self.margins[0].decided
+
+    @property
+    def decided(self) -> bool:
+        return all(m.decided for m in self.margins)
+
+    @property
+    def ties(self) -> list[Margin]:
+        """The rivals the data cannot tell from it."""
+        return [m for m in self.margins[1:] if not m.decided]
+
+    @property
+    def weakest(self) -> Margin:
+        return min(self.margins, key=lambda m: (m.lower, m.rival))
+
+    def as_json(self) -> dict:
+        w = self.weakest
+        return {"effect": self.cand.phenomenon, "form": self.cand.form, "label": self.cand.label,
+                "decided": self.decided, "margin": w.share, "margin_lower": w.lower, "nearest_rival": w.rival,
+                "rivals": [m.as_json() for m in self.margins],
+                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms],
+                "forms_told_apart_by": CATALOG[self.cand.phenomenon].forms_told_apart_by
+                if self.forms and self.cand.phenomenon in CATALOG else ""}

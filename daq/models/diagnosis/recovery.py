@@ -4,7 +4,7 @@ The table of issue 13 (data we did not write the catalog for: an independent ref
 forms, pairs, off-catalog, a rig off its config, judged through `model add` + `compare`) is
 tests/recovery_table.py.
 
-    python -m daq.models.recovery [--rate 1000] [--rate 100] [--json table.json]
+    python -m daq.models.diagnosis.recovery [--rate 1000] [--rate 100] [--json table.json]
 
 Cases: accel-sign, stick-time, force-rate, temperature, belt-speed hidden in brake-2dof;
 bearing-friction and temperature hidden in drum-pendulum; the seed brake model with
@@ -25,9 +25,10 @@ from daq.config import load_rig
 from daq.sim.effectset import parse_effect
 from daq.sim.run import simulate
 
+from ..fit.session import Session
+from ..spec import remove_effect, seed_model
 from .diagnose import diagnose
-from .session import Session
-from .spec import remove_effect, seed_model
+from .report import diagnosis_json
 
 CASES = [("brake-2dof", e, None) for e in ("accel-sign", "stick-time", "force-rate", "temperature", "belt-speed")] + [
     ("drum-pendulum", "bearing-friction", None), ("drum-pendulum", "temperature", None),
@@ -45,7 +46,7 @@ def run_case(rig: str, hidden: str | None, removed: str | None, rate: float, see
     t0 = time.perf_counter()
     s = Session(rec, "sim", cfg)
     d = diagnose(s, model)
-    j = d.as_json(s)
+    j = diagnosis_json(d, s)
     expected = hidden or removed
     fitted = [c for c in j["candidates"] if c["reduction"] is not None]
     top = fitted[0]
@@ -61,7 +62,7 @@ def run_case(rig: str, hidden: str | None, removed: str | None, rate: float, see
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m daq.models.recovery", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m daq.models.diagnosis.recovery", description=__doc__.splitlines()[0])
     ap.add_argument("--rate", type=float, action="append")
     ap.add_argument("--json")
     args = ap.parse_args(argv)

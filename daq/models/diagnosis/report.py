@@ -8,15 +8,13 @@ Decision record: docs/decisions/0041-models-core-as-a-solver.md.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..fit.session import Session
 from .compare import OUTLIER_SIGMAS
+from .scoring import Diagnosis
 
-if TYPE_CHECKING:  # (types only: diagnose imports this module)
-    from .diagnose import Diagnosis
-    from .session import Session
 
 def diagnosis_json(d: Diagnosis, session: Session) -> dict:
     """The diagnosis as `daq diagnose --json` prints it and diagnose.json keeps it."""

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .candidates import Candidate
-from .lm import start_jacobian
-from .session import Fitted, Session
+from ..candidates import Candidate
+from ..fit.lm import start_jacobian
+from ..fit.session import Fitted, Session
 
 MIN_STEP = 1e-3  # finite-difference step of a strength, relative to its range (or value, for mechanics)
 

@@ -27,9 +27,9 @@ from scipy.signal import medfilt, welch
 from daq.physics.contact import AUX
 from daq.signals import dominant_frequency, frequency_against_amplitude, paper_spectrogram, ringing_by_amplitude
 
-from . import robust
-from .cycle_features import PHASES, cycle_phases, load_cycles, side_by_side
-from .session import Fitted, Session
+from ..fit import robust
+from ..fit.cycle_features import PHASES, cycle_phases, load_cycles, side_by_side
+from ..fit.session import Fitted, Session
 
 N_TIME_BINS = 10
 # within this of 50 or 60 Hz (or their 2nd, 3rd harmonics) a line is the mains' hum on the gauge, not motion (the

@@ -1,5 +1,5 @@
-"""Which candidates a diagnosis step fits: pure rules over the score test's predicted gains (daq/models/screening.py)
-and the singles' ranking, apart from the fits themselves (daq/models/diagnose.py runs the step).
+"""Which candidates a diagnosis step fits: pure rules over the score test's predicted gains (daq/models/diagnosis/screening.py)
+and the singles' ranking, apart from the fits themselves (daq/models/diagnosis/diagnose.py runs the step).
 
 Why rules and not "fit everything": a fit costs seconds to minutes (a rate-and-state fit on a 90 s slider record,
 minutes), a step screens 9-16 candidates, and pairs grow as their square. The score test ranks loosely, so each
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from itertools import combinations
 
-from .candidates import Candidate
+from ..candidates import Candidate
 from .screening import gain_past_bound, predicted_gain
 
 FIT_PHENOMENA = 3  # per step, the phenomena with the largest predicted gains get full fits...

@@ -4,7 +4,7 @@ Why this way (model discrimination, Box and Hill 1967; T-optimality, Atkinson an
 rivals standing ("nothing more" against an effect it cannot see, or two effects that fit it equally well), the run
 that decides is the one under which the data one rival predicts are furthest from what the other can produce. Each
 rival is fitted to the record as well as it can be; for each candidate programme of the rig
-(:mod:`daq.models.programmes`), the record the rival taken as true predicts (its fitted values, the record's noise
+(:mod:`daq.models.design.programmes`), the record the rival taken as true predicts (its fitted values, the record's noise
 levels) is scored against the other rival at *its* fitted values, on the held-out windows the diagnosis would score,
 start values fitted in each window as always. Both directions, every pair: the programme's score is the worst of them
 (maximin: a proposal must decide whichever rival is true).
@@ -39,14 +39,14 @@ from daq.errors import InputError
 from daq.io.interchange import Recording
 from daq.sim.run import simulate
 
-from . import forked
-from .candidates import Candidate, candidates_for
-from .diagnose import MIN_T, Diagnosis, consistency, records_of, z_attainable
-from .linalg import FAILURES, failure_reason
-from .margins import MIN_EXCESS
+from ..candidates import Candidate, candidates_for
+from ..diagnosis.margins import MIN_EXCESS
+from ..diagnosis.scoring import MIN_T, Diagnosis, consistency, records_of, z_attainable
+from ..fit import forked
+from ..fit.linalg import FAILURES, failure_reason
+from ..fit.session import Fitted, Portable, Session, portable
+from ..spec import STRENGTH_START, Model, form_key
 from .programmes import Programme, family
-from .session import Fitted, Portable, Session, portable
-from .spec import STRENGTH_START, Model, form_key
 
 NOTHING = "nothing more"
 MAX_WINDOWS = 40  # held-out and fit windows of a predicted record (a third held out, as in any session)

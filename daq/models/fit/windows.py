@@ -5,7 +5,7 @@ non-overlapping, spread over the whole record and started where the contact stic
 held out (scored, never fitted), and a window whose drive changes much faster than the record's typical window
 is flagged as a transient (scored in the all-window error, neither fitted nor deciding). In a fit, no window's
 cost counts for more than WINDOW_CAP times the median window's (window_weights). The fit itself is
-daq/models/shooting.py. Decision records: docs/decisions/0002-output-error-by-multiple-shooting.md,
+daq/models/fit/shooting.py. Decision records: docs/decisions/0002-output-error-by-multiple-shooting.md,
 docs/decisions/0030-real-records-cycles-windows-floor.md.
 """
 

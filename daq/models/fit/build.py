@@ -17,8 +17,8 @@ from daq.physics.catalog import CATALOG
 from daq.sim.effectset import environment_vector
 from daq.sim.rigs import SimRig, make_sim
 
-from .spec import Model, rig_config_for
-from .user_effects import load_user_effect
+from ..spec import Model, rig_config_for
+from ..user_effects import load_user_effect
 
 
 class Builder:

@@ -48,11 +48,12 @@ from daq.io.archive import Catalog, CatalogRow, file_hash
 from daq.sim.run import simulate
 from daq.strict import Strict
 
-from .compare import compare
-from .diagnose import diagnose
-from .linalg import FAILURES
-from .session import Fitted, Session
-from .spec import Model, dumps, rig_config_for
+from ..diagnosis.compare import compare
+from ..diagnosis.diagnose import diagnose
+from ..diagnosis.report import diagnosis_json
+from ..fit.linalg import FAILURES
+from ..fit.session import Fitted, Session
+from ..spec import Model, dumps, rig_config_for
 
 KIND = "diagnose"  # the default kind of result, and the one `daq archive status` lists by default
 # each kind's revision: raise it when that analysis changes what it concludes, and its stored results no longer count
@@ -196,7 +197,7 @@ def _compare(s: Session, model: Model) -> dict[str, Any]:
 
 
 ANALYSES: dict[str, Callable[[Session, Model], dict[str, Any]]] = {
-    "diagnose": lambda s, model: diagnose(s, model, workers=1).as_json(s),
+    "diagnose": lambda s, model: diagnosis_json(diagnose(s, model, workers=1), s),
     "compare": _compare,
     "fit": lambda s, model: fit_json(s, s.fit(model)),
 }

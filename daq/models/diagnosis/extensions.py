@@ -13,11 +13,11 @@ import os
 from dataclasses import dataclass
 from functools import partial
 
-from . import forked
-from .candidates import Candidate
-from .linalg import FAILURES, failure_reason
-from .session import Fitted, Portable, Session, portable
-from .spec import Model
+from ..candidates import Candidate
+from ..fit import forked
+from ..fit.linalg import FAILURES, failure_reason
+from ..fit.session import Fitted, Portable, Session, portable
+from ..spec import Model
 
 FLOOR = "(noise floor)"  # the pool's one task that is not a fit
 

@@ -7,61 +7,18 @@ its place, by the paired bootstrap of margins.py; delivered_fit(): the model fil
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from dataclasses import replace
 
-from daq.physics.catalog import CATALOG
-
-from .candidates import Candidate, add_command
+from ..candidates import Candidate, add_command
+from ..fit.session import Fitted, Session
+from ..spec import Model
 from .extensions import fit_extensions, keep_fits
-from .margins import MIN_EXCESS, Margin, margin
-from .session import Fitted, Session
-from .spec import Model
+from .margins import MIN_EXCESS, NOTHING, Verdict, margin
+from .scoring import Scored
 
-if TYPE_CHECKING:
-    from .diagnose import Scored
-
-NOTHING = "nothing more"  # the rival every named effect has: the model without it
 RIVALS = 2  # per named effect: the best other phenomena of the step it entered in, each refitted in its place...
 RIVAL_SHARE = 0.5  # ...that explained at least this share of what the named one did alone in that step
 
-
-@dataclass
-class Verdict:
-    """A member of the final model and how firmly the held-out windows prefer it: over the model without it
-    (margins[0]) and over each plausible rival refitted in its place; over its phenomenon's other forms."""
-
-    cand: Candidate
-    margins: list[Margin]
-    forms: list[Margin] = field(default_factory=list)  # a rival form that too reaches the noise floor is no
-    # decision, however consistent its small difference (seen: 1.3x steps at 1 kHz, both laws at the floor, the
-    # bootstrap's bound +0.00x; `daq analyse rsf` asks 10 noise variances of an event for the same call)
-
-    @property
-    def needed(self) -> bool:
-        return self.margins[0].decided
-
-    @property
-    def decided(self) -> bool:
-        return all(m.decided for m in self.margins)
-
-    @property
-    def ties(self) -> list[Margin]:
-        """The rivals the data cannot tell from it."""
-        return [m for m in self.margins[1:] if not m.decided]
-
-    @property
-    def weakest(self) -> Margin:
-        return min(self.margins, key=lambda m: (m.lower, m.rival))
-
-    def as_json(self) -> dict:
-        w = self.weakest
-        return {"effect": self.cand.phenomenon, "form": self.cand.form, "label": self.cand.label,
-                "decided": self.decided, "margin": w.share, "margin_lower": w.lower, "nearest_rival": w.rival,
-                "rivals": [m.as_json() for m in self.margins],
-                "form_decided": all(m.decided for m in self.forms), "forms": [m.as_json() for m in self.forms],
-                "forms_told_apart_by": CATALOG[self.cand.phenomenon].forms_told_apart_by
-                if self.forms and self.cand.phenomenon in CATALOG else ""}
 
 
 def rivals_for(x: Candidate, singles: list[Scored], members: list[Candidate], min_t: float) -> list[Candidate]:

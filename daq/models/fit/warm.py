@@ -23,9 +23,9 @@ from daq.estimation.rigmodels import rig_model
 from daq.physics import rsf
 from daq.sim.run import simulate
 
-from .candidates import candidates_for
+from ..candidates import candidates_for
+from ..spec import seed_model
 from .session import Session
-from .spec import seed_model
 
 RIGS = ("brake-2dof", "drum-pendulum", "belt-ndof")
 WARM_S = 2.0  # seconds of a simulated record (at 100 Hz) each rig's kernels are run on
