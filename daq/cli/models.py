@@ -33,13 +33,19 @@ def _out_path(p: str, suffix: str, flag: str = "-o") -> Path:
 
 def cmd_model_init(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.spec import save_model, seed_model
+    from daq.models.spec import like_model, load_model, save_model, seed_model
 
     out = _out_path(args.output, ".toml")
-    m = seed_model(args.rig)
+    said: list[str] = []
+    if args.like:
+        m, said = like_model(load_model(args.like), args.rig, f"{args.like}: --like")
+    else:
+        m = seed_model(args.rig)
     save_model(m, out)
     print(f"wrote {out}: {m.title}; effects: {', '.join(m.effects)}; free: {', '.join(m.free_names())}",
           file=sys.stderr)
+    for line in said:  # a mechanics correction carried from the model's own rig
+        print(f"  {line}", file=sys.stderr)
     return 0
 
 
@@ -170,13 +176,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from daq.models.spec import save_model
 
     model, s = _session(args)
-    say(f"fitting {len(model.free_names())} free parameters")
+    if args.predict:  # the model as its file states it: nothing fitted but each window's start state
+        model = model.with_fixed()
+        say("the model as its file states it (--predict): only each window's start state fitted")
+    else:
+        say(f"fitting {len(model.free_names())} free parameters")
     f = s.fit(model)
     say("noise floor: the fitted model scored on its own simulated output with the measured noise")
     floor = s.noise_floor(f)
     say("forward simulation and breakdowns")
     cmp = compare(s, f, floor)
     res = cmp.result
+    res["predicted"] = bool(args.predict)  # True: no parameter fitted (the model's file as it is)
     if args.report:
         rep = Path(args.report)
         rep.mkdir(parents=True, exist_ok=True)
@@ -259,8 +270,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="model files: init, add, remove")
     msub = model.add_subparsers(dest="model_command", required=True)
     p = msub.add_parser("init", help="write the seed model of a rig")
-    p.add_argument("rig")
+    p.add_argument("rig", help="a rig id or a user's rig file")
     p.add_argument("-o", "--output", required=True)
+    p.add_argument("--like", metavar="MODEL.toml",
+                   help="keep this model's effects, forms and fitted friction and effect values and take the mechanics "
+                        "RIG's file states (a mechanics value the model holds off its own rig file carries as a ratio)")
     p.set_defaults(func=cmd_model_init)
     for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (in one of its forms), a user effect "
                                                  "file.py, or free a mechanics parameter (mechanics.NAME)"),
@@ -296,6 +310,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", help="folder for figures and JSON")
     p.add_argument("--history", default=HISTORY, help=f"history file to append to (default ./{HISTORY})")
     p.add_argument("--no-history", action="store_true")
+    p.add_argument("--predict", action="store_true",
+                   help="score the model as its file states it: nothing fitted but each window's start state (does a "
+                        "model found on one record, or carried by `model init --like`, predict this one?)")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("diagnose", help="which catalog effect is the model missing?")

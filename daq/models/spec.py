@@ -103,6 +103,13 @@ class Model(Closed):
                 allp[k].std = float(stds[k])
         return m
 
+    def with_fixed(self) -> "Model":
+        """A copy with every parameter fixed at its value: the model as its file states it (`compare --predict`)."""
+        m = self.model_copy(deep=True)
+        for par in m.params().values():
+            par.free = False
+        return m
+
     def digest(self) -> str:
         """Short hash of the model's structure and values (identifies a revision in the history)."""
         return hashlib.sha256(dumps(self).encode()).hexdigest()[:10]
@@ -377,6 +384,45 @@ def seed_model(rig: str) -> Model:
     # a user's rig file (a path, not a built-in id) travels with the model: its masses and springs are the rig's
     return Model(rig=cfg.rig, law=cfg.friction.law, title=f"seed model of {cfg.rig} ({seeds.get(cfg.rig, '')})",
                  rig_config=user_rig_file(rig), friction=friction, effects=effects)
+
+
+def like_model(model: Model, rig: str, source: str = "model init --like") -> tuple[Model, list[str]]:
+    """A model for another rig file of the same rig (``rig``: an id or a user's rig file) that keeps ``model``'s
+    friction law, effects, forms and fitted values and takes the mechanics the new rig file states; where ``model``
+    holds a mechanics value other than its own rig file's (a diagnosis found the rig is not its file), that value's
+    ratio to its rig file's is carried onto the new file's, as a correction. Returns the model and one line per
+    correction carried. One InputError for what cannot carry: another rig kind, a chain of other masses, a
+    channel the model predicts that the new rig does not record.
+
+    Why a ratio, not the value: what a lab changes between records is the spring or the drive; a mass or spring
+    found off its file is off by the same factor in the next file of the same rig (a miscalibrated gauge, a slider
+    heavier than weighed), not by the same newtons."""
+    old_cfg, new_cfg = rig_config_for(model, source), load_rig(rig)
+    if new_cfg.rig != model.rig:
+        raise InputError(source, "rig", f"{rig} is a {new_cfg.rig} rig; the model is for {model.rig}: it cannot carry")
+    for what in ("n_masses", "driven"):
+        old, new = getattr(old_cfg.mechanics, what, None), getattr(new_cfg.mechanics, what, None)
+        if old != new:
+            raise InputError(source, f"mechanics.{what}", f"{rig} has {new}, the model's rig {old}: it cannot carry")
+    missing = sorted(set(old_cfg.channels) - set(new_cfg.channels))
+    if missing:
+        raise InputError(source, "channels", f"{rig} records no {', '.join(missing)}, which the model reads")
+    m = model.model_copy(deep=True)
+    m.rig_config = user_rig_file(rig)
+    m.fit = None
+    said = []
+    for k, par in model.mechanics.items():
+        was = float(getattr(old_cfg.mechanics, k))
+        now = float(getattr(new_cfg.mechanics, k))
+        ratio = par.value / was if was else 1.0
+        scale = now / was if was else 1.0
+        m.mechanics[k] = par.model_copy(update={"value": ratio * now, "lo": None if par.lo is None else par.lo * scale,
+                                                "hi": None if par.hi is None else par.hi * scale})
+        if ratio != 1.0:
+            said.append(f"mechanics.{k} = {ratio * now:.6g}: {ratio:.4g} x the rig file's {now:.6g}, as the model "
+                        f"found on its own rig")
+    m.title = f"{model.title or model.describe()}, carried to {Path(rig).name}"
+    return m, said
 
 
 def add_effect(model: Model, name: str, source: str = "model add", path: str | None = None,
