@@ -16,6 +16,7 @@ from pathlib import Path
 from daq.errors import InputError
 from daq.io.jsonout import dumps_json, print_json
 
+from .docs import EffectsHelp
 from .output import say
 
 HISTORY = "daq-history.jsonl"
@@ -258,16 +259,20 @@ def cmd_history(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="model files: init, add, remove")
     msub = model.add_subparsers(dest="model_command", required=True)
-    p = msub.add_parser("init", help="write the seed model of a rig")
+    p = msub.add_parser("init", help="write the baseline model of a rig: its paper's equations, the law partly free")
     p.add_argument("rig")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_model_init)
     for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (in one of its forms), a user effect "
                                                  "file.py, or free a mechanics parameter (mechanics.NAME)"),
                           ("remove", cmd_model_remove, "remove an effect")):
-        p = msub.add_parser(name, help=hlp)
+        # add's help ends with the catalog, built only when asked for (the catalog loads numpy: `daq --help` must not)
+        p = msub.add_parser(name, help=hlp, add_help=name != "add")
+        if name == "add":
+            p.add_argument("-h", "--help", action=EffectsHelp, help="show this help and the catalog's effects, and exit")
         p.add_argument("model")
-        p.add_argument("effect")
+        p.add_argument("effect", help="EFFECT (listed below), a user effect FILE.py, or mechanics.NAME"
+                       if name == "add" else "an effect the model has")
         p.add_argument("-o", "--output", help="write here instead of changing MODEL in place")
         if name == "add":
             p.add_argument("--form", help="one of the effect's forms (as diagnose names it; default: its first)")
