@@ -24,7 +24,7 @@ from pathlib import Path
 from daq.errors import InputError
 from daq.io.jsonout import dumps_json
 from daq.io.loading import uniform
-from daq.io.plausible import check_recording
+from daq.io.plausible import check_values
 from daq.io.recording import Recording
 from daq.models import design
 from daq.models.candidates import candidates_for, parse_candidate
@@ -65,7 +65,9 @@ def _session(data: Data, model: Model, rig: str | None, loss: str, several_ok: b
         if data.rig is not None and data.rig != model.rig:
             raise InputError("recording", "rig", f"the recording is from {data.rig}, not {model.rig}")
         source = str(data.meta.get("source", "recording"))
-        check_recording(source, data, cfg)
+        # NaN allowed as in a recorder's file (where a stream had no data; uniform fills it in): a file imported
+        # through daq.io.open was refused non-finite values by the import
+        check_values(source, data.t, data.channels, cfg, allow_nan=True)
         return Session(uniform(data, source), source, cfg, loss=loss)
     if isinstance(data, (str, Path)):
         return Session.open(data, model, rig, loss=loss)
