@@ -1,6 +1,7 @@
 """Data acquisition, simulation and friction-model analysis for dry-friction test rigs.
 
-Exports the errors every layer raises (``DaqError``, ``InputError``); the rest is in the subpackages. Here too, as
+Exports the errors every layer raises (``DaqError``, ``InputError``) and, for a notebook, the loop's steps
+(``daq.compare``, ``daq.diagnose``, ``daq.propose``); the rest is in the subpackages. Here too, as
 the one piece every package imports first: ``lazy_exports``, how each package says what it exports (issue 30), and
 the one BLAS kernel set and thread count every machine computes with (``pin_blas_kernel``, ``pin_blas_threads``).
 """
@@ -55,7 +56,12 @@ def lazy_exports(
     return __getattr__, __dir__, list(table)
 
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, {"errors": ["DaqError", "InputError"]})
+# The loop's three steps (daq/api: ``daq.compare``, ``daq.diagnose``, ``daq.propose``) are here for a notebook's
+# ``import daq``, the one exception to "a package exports nothing from above it" (tests/test_layering.py): each is
+# imported when first used, so ``import daq`` still pays for nothing above this file.
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__, {"errors": ["DaqError", "InputError"], "api": ["compare", "diagnose", "propose"]}
+)
 
 BLAS_KERNEL = "Haswell"  # OpenBLAS's AVX2 + FMA kernels: every x86-64 CPU of the last ten years runs them
 

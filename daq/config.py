@@ -28,11 +28,12 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Self, Union
 
 import tomli_w
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from daq.physics.catalog import CATALOG
 
 from .errors import DaqError, InputError, parse_toml, read_text
+from .ramps import DECELERATION, DECELERATION_OLD
 from .strict import Strict  # re-exported: models elsewhere import it from here
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "rig_configs"
@@ -72,12 +73,17 @@ class DriveCfg(Strict):
     """The belt (or drum surface) drive and its default programme."""
 
     kind: Literal["belt", "drum"]
-    ramp: Literal["seed", "constant"]
+    ramp: Literal["deceleration", "seed", "constant"]  # "seed": the old name of "deceleration", read as it
     V0_m_per_s: float = Field(gt=0.0)
-    Tmax_s: float | None = Field(None, gt=0.0, description="seed ramp duration, paper 001 eq. (11)")
+    Tmax_s: float | None = Field(None, gt=0.0, description="deceleration ramp duration, paper 001 eq. (11)")
     max_speed_m_per_s: float = Field(gt=0.0)
     max_accel_m_per_s2: float = Field(gt=0.0)
     default_duration_s: float = Field(gt=0.0)
+
+    @field_validator("ramp")
+    @classmethod
+    def _one_name_for_the_deceleration(cls, ramp: str) -> str:
+        return DECELERATION_OLD if ramp == DECELERATION else ramp  # daq/ramps.py says why
 
 
 class ContactCfg(Strict):

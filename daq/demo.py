@@ -1,9 +1,9 @@
 """``daq demo``: the whole story on simulated hardware, with no hardware attached.
 
-A simulated brake-2dof rig with a hidden effect runs the seed deceleration ramp
+A simulated brake-2dof rig with a hidden effect runs paper 001's deceleration ramp
 of paper 001 (eq. 11, V0 = 0.17 m/s) through the daemon: drivers, bus, recorder
 and online estimator, live progress. Then the researcher's loop on that recording:
-compare the seed model, diagnose, add the effect diagnose names, compare again,
+compare the baseline model (`daq model init`), diagnose, add the effect diagnose names, compare again,
 until diagnose finds nothing more; the error falls and a report folder holds every
 figure. A real regulator does not follow its set points exactly (it ramps within its
 acceleration limit), so the recording usually also needs `belt-speed` (drive the
@@ -60,7 +60,7 @@ def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed
         raise InputError(str(rec_path), "out", "exists from an earlier demo; choose another --out or remove it")
     cfg = load_rig(RIG)
     t_start = time.perf_counter()
-    _line(f"1/4 recording: simulated {RIG} rig (hidden effect: {hidden}) through the daemon; seed ramp "
+    _line(f"1/4 recording: simulated {RIG} rig (hidden effect: {hidden}) through the daemon; paper 001's deceleration ramp "
           f"V0 = {cfg.drive.V0_m_per_s} m/s, Tmax = {cfg.drive.Tmax_s:g} s, time-scaled to {ramp_s:g} s")
     tty = sys.stderr.isatty()
 
@@ -94,13 +94,13 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
     rec = load_data(rec_path, RIG)
     session = Session(rec, str(rec_path), cfg, max_windows=MAX_WINDOWS)
     model = seed_model(RIG)
-    save_model(model, out / "model-seed.toml")
-    _line(f"2/4 the seed model ({model.describe()}) against the recording ({session.m.n} samples at "
+    save_model(model, out / "model-baseline.toml")
+    _line(f"2/4 the baseline model ({model.describe()}) against the recording ({session.m.n} samples at "
           f"{session.m.rate:.0f} Hz, {session.win.starts.size} windows of {(session.win.length - 1) / session.m.rate:.2f} s)")
     history: list[dict] = []
     rounds: list[dict] = []
     for rnd in range(1, MAX_ROUNDS + 1):
-        tag = "seed" if rnd == 1 else "+".join(list(model.effects)[3:] + [k.split(".")[-1] for k in model.mechanics if model.mechanics[k].free])
+        tag = "baseline" if rnd == 1 else "+".join(list(model.effects)[3:] + [k.split(".")[-1] for k in model.mechanics if model.mechanics[k].free])
         diag = diagnose(session, model, progress=lambda m: _line("    " + m))
         res, drawn = compare(session, diag.base, diag.floors)
         folder = out / f"{rnd}-{tag}"
@@ -128,7 +128,7 @@ def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:
     names = [n for r in rounds for n in r["diagnosed"]]
     _line(f"    error on held-out windows {first['error']:.3g} m -> {last['error']:.3g} m (noise floor "
           f"{last['noise_floor']:.3g} m): {removed:.0%} of the excess removed by adding {', '.join(names) or 'nothing'}")
-    return {"recording": str(rec_path), "hidden_effect": hidden, "rounds": rounds, "error_seed": first["error"],
+    return {"recording": str(rec_path), "hidden_effect": hidden, "rounds": rounds, "error_baseline": first["error"],
             "error_final": last["error"], "noise_floor": last["noise_floor"], "excess_removed": removed,
             "added": names, "final_model": last["model"], "error_definition": ERROR_DEFINITION}
 
@@ -149,10 +149,10 @@ def _report(session, fitted, res: dict, drawn, folder: Path) -> None:
 
 # a belt that lags its command (a first-order lag of 0.15 s, no ripple): invisible while the command never changes.
 # Why not aging (stick-time), the textbook case: through the daemon the belt starts from rest, and the rig config's
-# aging (gain 0.6) turns that start into stick-slip that persists at 0.17 m/s, 212 x the floor for the seed model,
+# aging (gain 0.6) turns that start into stick-slip that persists at 0.17 m/s, 212 x the floor for the baseline model,
 # a record nothing in the catalog then explains; at gain 0.2 (saturating by 0.3 s) no run of the family shows it
 LOOP_HIDDEN = "belt-speed:tau=0.15,ripple=0"
-LOOP_V0 = 0.17  # m/s: the seed ramp's start speed, held
+LOOP_V0 = 0.17  # m/s: paper 001's deceleration ramp's start speed, held
 LOOP_FIRST_S = 10.0
 # No time budget: the rig's whole family is scored (42 programmes, ~35 s on a 2-core machine). A budget that cuts
 # the family makes the proposal depend on the machine's speed (which programmes were scored before the clock ran
@@ -173,7 +173,7 @@ def run_closed_loop(out: str | Path, hidden: str = LOOP_HIDDEN, seed: int = 1, b
         raise InputError(str(first), "out", "exists from an earlier demo; choose another --out or remove it")
     t_start = time.perf_counter()
     model = seed_model(RIG)
-    save_model(model, out / "model-seed.toml")
+    save_model(model, out / "model-baseline.toml")
     _line(f"1 recording: simulated {RIG} rig (hidden effect: {hidden}) through the daemon at a constant "
           f"{LOOP_V0} m/s for {LOOP_FIRST_S:g} s")
     runs = [_record(constant_ramp(LOOP_V0, LOOP_FIRST_S), first, hidden, seed)]
@@ -214,7 +214,7 @@ def run_closed_loop(out: str | Path, hidden: str = LOOP_HIDDEN, seed: int = 1, b
         runs.append(_record(ramp_file, out / f"run-{len(runs) + 1}.h5", hidden, seed + len(runs)))
     last = steps[-1]
     result = {"hidden_effect": hidden, "runs": [str(p) for p in runs], "proposed_runs": len(runs) - 1,
-              "steps": steps, "named": last["named"], "error_seed": last["error"], "error_final": last["final_error"],
+              "steps": steps, "named": last["named"], "error_baseline": last["error"], "error_final": last["final_error"],
               "noise_floor": last["noise_floor"], "seconds": time.perf_counter() - t_start}
     (out / "summary.json").write_text(dumps_json(result))
     return result

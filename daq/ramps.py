@@ -1,6 +1,6 @@
-"""Belt/drum speed programmes: the seed ramp (paper 001 eq. 11) and ramp files.
+"""Belt/drum speed programmes: paper 001's deceleration ramp (eq. 11) and ramp files.
 
-A ramp file is TOML with segments (hold, linear, exponential, seed, and the rate-and-state protocols
+A ramp file is TOML with segments (hold, linear, exponential, deceleration, and the rate-and-state protocols
 velocity-steps and slide-hold-slide) or a CSV table ``t,vb``. Every programme becomes a piecewise-linear table (t, v) that
 the simulator, and later the daemon's set-point generator, evaluate. Speeds
 are surface speeds in m/s (drum: circumferential speed at the friction radius).
@@ -14,28 +14,37 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError, parse_toml, read_text
 from .strict import Closed
 
 EXP_POINTS = 200  # samples per exponential segment in the table
+# Paper 001's deceleration, eq. (11), is the segment kind "deceleration"; files written before it had that name say
+# "seed", still read. Inside the code, in proposals and in recordings' ramp names the kind is still "seed" (the
+# models' programme family writes it), so both names read to that one value.
+DECELERATION, DECELERATION_OLD = "deceleration", "seed"
 
 
 class Segment(Closed):
     model_config = ConfigDict(allow_inf_nan=False)
-    kind: Literal["hold", "linear", "exponential", "seed", "velocity-steps", "slide-hold-slide"]
+    kind: Literal["hold", "linear", "exponential", "deceleration", "seed", "velocity-steps", "slide-hold-slide"]
     duration_s: float | None = Field(None, gt=0.0)
     to_m_per_s: float | None = Field(None, ge=0.0, description="end speed (linear, exponential)")
     tau_s: float | None = Field(None, gt=0.0, description="time constant (exponential)")
-    V0_m_per_s: float | None = Field(None, ge=0.0, description="seed: initial speed")
-    Tmax_s: float | None = Field(None, gt=0.0, description="seed: time to standstill")
+    V0_m_per_s: float | None = Field(None, ge=0.0, description="deceleration: initial speed")
+    Tmax_s: float | None = Field(None, gt=0.0, description="deceleration: time to standstill")
     speeds_m_per_s: list[float] | None = Field(None, min_length=1, description="velocity-steps: the plateaus' speeds")
     slip_m: float | None = Field(None, gt=0.0, description="velocity-steps, slide-hold-slide: load-point travel of "
                                                           "each sliding plateau")
     holds_s: list[float] | None = Field(None, min_length=1, description="slide-hold-slide: the hold times, in order")
     rise_s: float = Field(0.01, gt=0.0, description="velocity-steps, slide-hold-slide: duration of each change of "
                                                     "speed (the rig's acceleration limit applies to it)")
+
+    @field_validator("kind")
+    @classmethod
+    def _one_name_for_the_deceleration(cls, kind: str) -> str:
+        return DECELERATION_OLD if kind == DECELERATION else kind
 
 
 class Ramp(Closed):

@@ -29,7 +29,7 @@ LAYERS: list[set[str]] = [
     {"daq.sim", "daq.streaming"},
     {"daq.estimation", "daq.models", "sim_backends"},
     {"daq.daemon", "daq.web"},
-    {"daq.analysis", "daq.bench", "daq.demo"},
+    {"daq.analysis", "daq.bench", "daq.demo", "daq.api"},
     {"daq.cli"},
 ]
 LEVEL = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
@@ -275,6 +275,11 @@ def _packages() -> list[str]:
     return sorted(_module_name(p) for d in PACKAGES for p in (ROOT / d).rglob("__init__.py"))
 
 
+# The one exception: the top package names the loop's three steps for a notebook's ``import daq`` (daq/api), looked up
+# by name when first used, so ``import daq`` and every layer below still import nothing above them.
+NOTEBOOK_LOOP = {("daq", "compare"), ("daq", "diagnose"), ("daq", "propose")}
+
+
 def test_every_package_says_what_it_exports():
     """Each package's ``__all__`` (issue 30) names objects of its own tree, no higher in the layers than the package
     (``daq`` is the bottom layer: it may not export ``daq.config``'s names), none under a submodule's name unless
@@ -303,7 +308,7 @@ def test_every_package_says_what_it_exports():
                 where = None  # a constant: no __module__ of its own
             if where is not None and where != name and not where.startswith(f"{name}."):
                 bad.append(f"{name}.{attr} is defined in {where}")
-            elif where is not None and LEVEL[_unit(where)] > LEVEL[_unit(name)]:
+            elif where is not None and LEVEL[_unit(where)] > LEVEL[_unit(name)] and (name, attr) not in NOTEBOOK_LOOP:
                 bad.append(f"{name}.{attr} comes from {where}, a layer above {name}")
             if attr in submodules and not inspect.ismodule(value):
                 bad.append(f"{name}.{attr} is also a submodule's name")

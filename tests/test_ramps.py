@@ -446,3 +446,20 @@ def test_the_drive_table_is_read_at_the_same_row_as_by_bisection(table):
     for t in ts:
         for left in (False, True):
             assert ramp_eval_side(rt, rv, float(t), left) == _bisected(rt, rv, float(t), left), (t, left)
+
+
+def test_paper_001s_deceleration_is_named_so_and_the_old_name_still_reads(tmp_path):
+    """"Seed" means a random seed only: a ramp file's segment and a rig file's drive say "deceleration" for paper
+    001's eq. (11), and files that say "seed" read the same."""
+    from daq.config import load_rig, rig_path
+
+    text = "[[segment]]\nkind = \"{}\"\nV0_m_per_s = 0.17\nTmax_s = 45.0\n"
+    (tmp_path / "new.toml").write_text(text.format("deceleration"))
+    (tmp_path / "old.toml").write_text(text.format("seed"))
+    _, rt_new, rv_new = load_ramp(tmp_path / "new.toml")
+    _, rt_old, rv_old = load_ramp(tmp_path / "old.toml")
+    assert np.array_equal(rt_new, rt_old) and np.array_equal(rv_new, rv_old)
+    rig = rig_path("brake-2dof").read_text()
+    assert 'ramp = "seed"' in rig
+    (tmp_path / "rig.toml").write_text(rig.replace('ramp = "seed"', 'ramp = "deceleration"'))
+    assert load_rig(str(tmp_path / "rig.toml")).drive == load_rig("brake-2dof").drive

@@ -34,7 +34,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     r = run_demo(args.out, hidden=args.hidden or HIDDEN, ramp_s=args.ramp_seconds, seed=args.seed)
     added = ", ".join(r["added"]) or "nothing"
     line = (f"demo: report in {args.out}/ (summary.json, history.png, one folder per round); added {added}; "
-            f"error on held-out windows {r['error_seed']:.3g} -> {r['error_final']:.3g} m (noise floor "
+            f"error on held-out windows {r['error_baseline']:.3g} -> {r['error_final']:.3g} m (noise floor "
             f"{r['noise_floor']:.3g} m; {r['excess_removed']:.0%} of the excess removed)")
     print(line + f" in {r['seconds']:.0f} s")
     return 0
@@ -48,7 +48,7 @@ def _closed_loop(args: argparse.Namespace, run_closed_loop, default_hidden: str)
     fell = [s["fell"] for s in r["steps"] if "fell" in s]
     print(f"demo --closed-loop: report in {args.out}/ (summary.json, proposal-N/next.png); hidden {r['hidden_effect']}; "
           f"{r['proposed_runs']} proposed run(s); named {', '.join(r['named']) or 'nothing'}; error on held-out windows "
-          f"{r['error_seed']:.3g} -> {r['error_final']:.3g} m (noise floor {r['noise_floor']:.3g} m) in {r['seconds']:.0f} s"
+          f"{r['error_baseline']:.3g} -> {r['error_final']:.3g} m (noise floor {r['noise_floor']:.3g} m) in {r['seconds']:.0f} s"
           + "".join(f"\n  {f}" for f in fell))
     return 0
 
@@ -62,6 +62,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     demo.add_argument("--closed-loop", action="store_true",
                       help="record at one constant speed, diagnose, propose the run that decides what the record "
                            "leaves open, run it through the daemon, diagnose both together (issue 26)")
-    demo.add_argument("--ramp-seconds", type=float, default=20.0, help="the 45 s seed ramp time-scaled to this")
+    demo.add_argument("--ramp-seconds", type=float, default=20.0, help="paper 001's 45 s deceleration ramp, time-scaled to this")
     demo.add_argument("--seed", type=int, default=1, help="noise seed of the simulated instruments")
     demo.set_defaults(func=cmd_demo)

@@ -16,6 +16,7 @@ from pathlib import Path
 from daq.errors import InputError
 from daq.io.jsonout import dumps_json, print_json
 
+from .docs import EffectsHelp
 from .output import say
 
 HISTORY = "daq-history.jsonl"
@@ -170,69 +171,31 @@ def _append_history(path: Path, res: dict) -> None:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.diagnosis.compare import compare
-    from daq.models.diagnosis.report import compare_text
-    from daq.models.figures import compare_figure, cycles_figure, ringing_figure, spectrogram_figure
-    from daq.models.spec import save_model
+    from daq.api.loop import compared
 
     model, s = _session(args)
-    if args.predict:  # the model as its file states it: nothing fitted but each window's start state
-        model = model.with_fixed()
-        say("the model as its file states it (--predict): only each window's start state fitted")
-    else:
-        say(f"fitting {len(model.free_names())} free parameters")
-    f = s.fit(model)
-    say("noise floor: the fitted model scored on its own simulated output with the measured noise")
-    floor = s.noise_floor(f)
-    say("forward simulation and breakdowns")
-    cmp = compare(s, f, floor)
-    res = cmp.result
-    res["predicted"] = bool(args.predict)  # True: no parameter fitted (the model's file as it is)
-    if args.report:
-        rep = Path(args.report)
-        rep.mkdir(parents=True, exist_ok=True)
-        compare_figure(s, f, res, rep / "compare.png")
-        spectrogram_figure(s, cmp.drawn, rep / "spectrogram.png")
-        cycles_figure(s, res, cmp.drawn, rep / "cycles.png")
-        ringing_figure(s, res, cmp.drawn, rep / "ringing.png")  # where the record rings off the rig's mechanics
-        (rep / "compare.json").write_text(dumps_json(res))
-        save_model(f.model, rep / "fitted.toml")
-        res["report"] = str(rep)
+    c = compared(s, model, report=args.report, predict=args.predict, progress=say)  # daq.compare's own path
     if not args.no_history:
-        _append_history(Path(args.history), res)
+        _append_history(Path(args.history), c.json)
     if args.json:
-        print_json(res)
+        print_json(c.json)
     else:
-        print(compare_text(res, args.report))
+        print(c.text)
     return 0
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     # heavy: numpy, scipy, numba and the models only when the command runs
-    from daq.models.diagnosis.diagnose import diagnose
-    from daq.models.diagnosis.report import diagnosis_json, diagnosis_text
-    from daq.models.figures import diagnose_figure
+    from daq.api.loop import diagnosed
 
     if args.workers is not None and args.workers < 1:  # checked before any work (issue 16: 0 and -3 were taken)
         raise InputError("--workers", "--workers", f"must be a whole number >= 1, got {args.workers}")
     model, s = _session(args)
-    t0 = time.perf_counter()
-    d = diagnose(s, model, progress=say, workers=args.workers)
-    res = diagnosis_json(d, s)
-    res["seconds"] = time.perf_counter() - t0
-    if args.report:
-        rep = Path(args.report)
-        rep.mkdir(parents=True, exist_ok=True)
-        if len(getattr(s, "parts", ())) > 1:
-            say("several recordings: diagnose.json only (the figure is drawn for one recording)")
-        else:
-            diagnose_figure(s, d, rep / "diagnose.png")
-        (rep / "diagnose.json").write_text(dumps_json(res))
-        res["report"] = str(rep)
+    d = diagnosed(s, model, workers=args.workers, report=args.report, progress=say)  # daq.diagnose's own path
     if args.json:
-        print_json(res)
+        print_json(d.json)
     else:
-        print(diagnosis_text(d, res))
+        print(d.text)
     return 0
 
 
@@ -269,7 +232,7 @@ def cmd_history(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="model files: init, add, remove")
     msub = model.add_subparsers(dest="model_command", required=True)
-    p = msub.add_parser("init", help="write the seed model of a rig")
+    p = msub.add_parser("init", help="write the baseline model of a rig: its paper's equations, the law partly free")
     p.add_argument("rig", help="a rig id or a user's rig file")
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--like", metavar="MODEL.toml",
@@ -279,9 +242,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     for name, fn, hlp in (("add", cmd_model_add, "add a catalog effect (in one of its forms), a user effect "
                                                  "file.py, or free a mechanics parameter (mechanics.NAME)"),
                           ("remove", cmd_model_remove, "remove an effect")):
-        p = msub.add_parser(name, help=hlp)
+        # add's help ends with the catalog, built only when asked for (the catalog loads numpy: `daq --help` must not)
+        p = msub.add_parser(name, help=hlp, add_help=name != "add")
+        if name == "add":
+            p.add_argument("-h", "--help", action=EffectsHelp, help="show this help and the catalog's effects, and exit")
         p.add_argument("model")
-        p.add_argument("effect")
+        p.add_argument("effect", help="EFFECT (listed below), a user effect FILE.py, or mechanics.NAME"
+                       if name == "add" else "an effect the model has")
         p.add_argument("-o", "--output", help="write here instead of changing MODEL in place")
         if name == "add":
             p.add_argument("--form", help="one of the effect's forms (as diagnose names it; default: its first)")
