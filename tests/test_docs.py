@@ -32,7 +32,6 @@ README_MAX_LINES = 150
 # present tense (their history going to CHANGELOG.md and the decision records).
 HISTORY_PENDING = {
     "docs/daemon.md": "the daemon's page, being changed with the daemon and recorder",
-    "docs/recovery-table.md": "the recovery table, re-run and rewritten with the diagnosis it measures",
 }
 
 
