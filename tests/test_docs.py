@@ -27,9 +27,8 @@ ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 README_MAX_LINES = 150
 
-# Pages the history rule does not read yet, each with why: both are being changed by their owners (the daemon's
-# and the recovery table's) at the same time as this rule was written, and join it when they are rewritten in the
-# present tense (their history going to CHANGELOG.md and the decision records).
+# Pages the history rule does not read yet, each with why; a page joins it when it is rewritten in the present tense
+# (its history going to CHANGELOG.md and the decision records).
 HISTORY_PENDING = {
     "docs/daemon.md": "the daemon's page, being changed with the daemon and recorder",
 }
