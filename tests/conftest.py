@@ -49,8 +49,11 @@ RUN_FIRST = (
     "test_archive.py",  # 127 s: Dask clusters
     "test_diagnose_multi.py",  # 66 s
     "test_propose.py",  # 25 s
+    "test_api.py",  # 25 s (2026-12-08): the loop from Python, one diagnosis and one proposal
+    "test_failures.py",  # 25 s (2026-12-08): fits that fail, contained (a diagnosis, compares, a proposal, a job)
     # in real time
     "test_demo_loop.py",  # 276 s: two runs through the daemon, diagnoses, a proposal
+    "test_tutorial.py",  # 84 s (2026-12-08, a loaded machine): the tutorial's recording through the daemon, its loop
     "test_campaign.py",  # 82 s
     "test_daemon_e2e.py",  # 125 s
     "test_soak.py",  # 63 s: a half-minute soak

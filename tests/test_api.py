@@ -1,8 +1,11 @@
 """The loop from Python (daq/api: ``daq.compare``, ``daq.diagnose``, ``daq.propose``) is the command line's loop.
 
 On one record, each step's result is the JSON the command prints with ``--json`` (wall times and the paths of
-files written aside), its fields are attributes, and ``.figure()`` draws the command's figure. ``import daq`` stays
-light: the steps load when first used.
+files written aside), its fields are attributes, and ``.figure()`` draws the command's figure. The command and the
+Python step run one function (daq.api.loop's ``compared``, ``diagnosed``, ``proposed``) on the session each opens:
+the command is run once, the object that function returned is held to the JSON it printed, and the Python step's
+own part (opening the data and the model, passing the options on) is checked with that function answering at
+once. ``import daq`` stays light: the steps load when first used.
 
 The record: 10 s of the brake at a constant 0.17 m/s, 100 Hz, accel-sign hidden (tests/test_propose.py's set-up,
 which keeps a diagnosis and a proposal to seconds).
@@ -59,10 +62,11 @@ def test_import_daq_stays_light_and_names_the_loop():
 
 
 @pytest.mark.slow
-def test_compare_is_the_commands(record, capsys, tmp_path):
+def test_compare_is_the_commands(record, capsys, tmp_path, monkeypatch):
     a, m = str(record / "a.h5"), str(record / "m.toml")
-    by_cli = cli_json(capsys, "compare", a, "--model", m, "--no-history")
-    cmp = daq.compare(a, m, report=tmp_path / "cmp")
+    kept = spy(monkeypatch, "compared")
+    by_cli = cli_json(capsys, "compare", a, "--model", m, "--no-history", "--report", str(tmp_path / "cmp"))
+    (cmp,) = kept
     same_json(cmp.json, by_cli)
     same_json(json.loads((tmp_path / "cmp" / "compare.json").read_text()), by_cli)
     # typed fields and every JSON field as an attribute
@@ -75,14 +79,45 @@ def test_compare_is_the_commands(record, capsys, tmp_path):
     fig = cmp.figure(tmp_path / "again.png")
     assert fig.path.stat().st_size > 20_000 and fig._repr_png_()[:8] == b"\x89PNG\r\n\x1a\n"
     assert cmp.text.startswith(f"error {by_cli['error']:.4g} m on held-out windows")
+    calls = asked(monkeypatch, "compared")
+    assert daq.compare(a, m, report=tmp_path / "api", predict=True) == "answer"
+    (source, model, _, kw), = calls
+    assert (source, model, kw["report"], kw["predict"]) == (a, seed_model("brake-2dof").describe(), tmp_path / "api",
+                                                            True)
     # a recording opened by daq.io.open: tests/test_tutorial.py (the tutorial's Python step on a daemon's recording)
 
 
+def spy(monkeypatch, name: str) -> list:
+    """daq.api.loop's ``name`` (diagnosed, proposed: what the command and the Python step both run) wrapped to keep
+    each result it returns: the command's JSON is then checked against the very object the Python step returns."""
+    from daq.api import loop
+
+    real, kept = getattr(loop, name), []
+
+    def wrapped(*a, **k):
+        kept.append(real(*a, **k))
+        return kept[-1]
+
+    monkeypatch.setattr(loop, name, wrapped)
+    return kept
+
+
+def asked(monkeypatch, name: str) -> list:
+    """daq.api.loop's ``name`` replaced by one that records what it was asked (the session's source, the model, the
+    keywords) and answers ``"answer"``: the Python step's own part, opening the data and the model, without a run."""
+    from daq.api import loop
+
+    calls = []
+    monkeypatch.setattr(loop, name, lambda s, m, *a, **k: calls.append((s.source, m.describe(), a, k)) or "answer")
+    return calls
+
+
 @pytest.mark.slow
-def test_diagnose_is_the_commands(record, capsys, tmp_path):
+def test_diagnose_is_the_commands(record, capsys, tmp_path, monkeypatch):
     a, m = str(record / "a.h5"), str(record / "m.toml")
+    kept = spy(monkeypatch, "diagnosed")
     by_cli = cli_json(capsys, "diagnose", a, "--model", m)
-    d = daq.diagnose(a, m)
+    (d,) = kept
     same_json(d.json, by_cli)
     assert d.named == by_cli["named"] and d.summary == by_cli["summary"]
     assert d.missing_effect_found == by_cli["missing_effect_found"]
@@ -91,16 +126,26 @@ def test_diagnose_is_the_commands(record, capsys, tmp_path):
         assert by_cli["summary"].endswith(f"daq model add MODEL {d.add_commands()[0]}.")
     assert d.figure(tmp_path / "d.png").path.stat().st_size > 20_000
     assert str(d) == by_cli["summary"]
+    calls = asked(monkeypatch, "diagnosed")
+    assert daq.diagnose(a, m, workers=1) == "answer"
+    (source, model, _, kw), = calls
+    assert (source, model, kw["workers"], kw["report"]) == (a, seed_model("brake-2dof").describe(), 1, None)
 
 
 @pytest.mark.slow
-def test_propose_is_the_commands(record, capsys, tmp_path):
+def test_propose_is_the_commands(record, capsys, tmp_path, monkeypatch):
     a, m = str(record / "a.h5"), str(record / "m.toml")
+    kept = spy(monkeypatch, "proposed")
     by_cli = cli_json(capsys, "propose", a, "--model", m, "--rival", "velocity-strengthening", "--max-run-s", "10",
                       "-o", str(tmp_path / "cli.toml"))
-    p = daq.propose(a, m, tmp_path / "api.toml", rival=["velocity-strengthening"], max_run_s=10)
+    (p,) = kept
     same_json(p.json, by_cli)
     assert p.programme == by_cli["programme"] and p.decides == by_cli["decides"] and p.z == by_cli["z"]
-    assert (tmp_path / "api.toml").read_text() == (tmp_path / "cli.toml").read_text()
-    assert (tmp_path / "api.toml").read_text().endswith(p.ramp)
-    assert (tmp_path / "api.png").stat().st_size > 20_000
+    assert (tmp_path / "cli.toml").read_text().endswith(p.ramp)
+    assert (tmp_path / "cli.png").stat().st_size > 20_000 and p.figure(tmp_path / "again.png").path.exists()
+    calls = asked(monkeypatch, "proposed")
+    assert daq.propose(a, m, tmp_path / "api.toml", rival=["velocity-strengthening"], max_run_s=10) == "answer"
+    (source, model, (given, out), kw), = calls
+    assert (source, model, [c.label for c in given], out) == (a, seed_model("brake-2dof").describe(),
+                                                              ["velocity-strengthening"], tmp_path / "api.toml")
+    assert kw["max_run_s"] == 10 and kw["write"] is True
