@@ -24,7 +24,7 @@ from pathlib import Path
 
 from daq.config import load_rig
 from daq.daemon.service import BenchProgress, run_sim_ramp
-from daq.errors import InputError
+from daq.errors import DaqError, InputError
 from daq.io.jsonout import dumps_json
 from daq.io.loading import load_data
 from daq.models.candidates import add_command
@@ -75,8 +75,17 @@ def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed
         elif int(b.elapsed_s * 5) % 10 == 0:  # every ~2 s in a log
             _line(msg)
 
-    run_sim_ramp(RIG, seed_ramp(cfg.drive.V0_m_per_s, cfg.drive.Tmax_s), rec_path, effects=[hidden],
-                 ramp_time_scale=ramp_s / cfg.drive.Tmax_s, seed=seed, progress=show, progress_s=0.2)
+    try:
+        run_sim_ramp(RIG, seed_ramp(cfg.drive.V0_m_per_s, cfg.drive.Tmax_s), rec_path, effects=[hidden],
+                     ramp_time_scale=ramp_s / cfg.drive.Tmax_s, seed=seed, progress=show, progress_s=0.2)
+    except InputError:
+        raise
+    except (RuntimeError, DaqError) as exc:  # the ramp aborted, or the bench stopped answering: said in one line
+        if tty:
+            print(file=sys.stderr)
+        raise RecordingFailed(f"the demo's recording did not finish ({exc}); on a machine too busy for the simulated "
+                              f"rig's clock its interlocks stop the ramp: run it again when the machine is quieter") \
+            from None
     if tty:
         print(file=sys.stderr)
     _line(f"    wrote {rec_path} ({time.perf_counter() - t_start:.0f} s)")
@@ -85,6 +94,10 @@ def run_demo(out: str | Path, hidden: str = HIDDEN, ramp_s: float = RAMP_S, seed
     result["seconds"] = time.perf_counter() - t_start
     (out / "summary.json").write_text(dumps_json(result))
     return result
+
+
+class RecordingFailed(DaqError):
+    """The demo's recording through the daemon did not finish (`daq demo` says why in one line, exit 1)."""
 
 
 def analyse(rec_path: Path, out: Path, hidden: str = "") -> dict:

@@ -20,6 +20,7 @@ from helpers import make_recordings
 from recovery_table import RAMPS, _run
 from refsim import make as refsim
 
+from daq import demo
 from daq.cli.main import main as daq
 from daq.config import load_rig
 from daq.errors import NumericalFailure
@@ -249,3 +250,17 @@ def test_a_proposal_leaves_out_a_rival_whose_fit_fails(tmp_path, faults, capsys)
     result = json.loads(out)
     assert {r["label"] for r in result["rivals"]} == {"nothing more", "accel-sign (relative)"}, result["rivals"]
     assert f"the rival {LINALG} (linear) is left out: its fit failed:" in err and "SVD did not converge" in err, err
+
+
+def test_a_demo_whose_recording_does_not_finish_says_so_in_one_line(tmp_path, monkeypatch, capsys):
+    """A ramp the simulated rig's interlocks stop (a machine too busy for its clock) or a bench that stops
+    answering ended `daq demo` in a traceback (drivers.motor.MotorUnavailable, seen beside a loaded machine):
+    one line and exit 1 instead, and a DaqError of any command the same."""
+    def aborted(*a, **k):
+        raise RuntimeError("ramp aborted: watchdog: no speed reading for 0.5 s")
+
+    monkeypatch.setattr(demo, "run_sim_ramp", aborted)
+    assert daq(["demo", "--out", str(tmp_path / "demo")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("daq: error: the demo's recording did not finish (ramp aborted: watchdog") and \
+        "Traceback" not in "\n".join(err), err

@@ -2,7 +2,8 @@
 
 Each command group is a module of daq/cli/ with a ``register(sub)`` function; they are
 listed here in the order `daq --help` shows them. Bad input of any kind: one line on stderr
-naming file and field, exit 2; a command's own fit that fails numerically (NumericalFailure): one line, exit 2.
+naming file and field, exit 2; a command's own fit that fails numerically (NumericalFailure): one line, exit 2; any
+other of our own errors at run time (a DaqError: a device that stopped answering, a rig in use): one line, exit 1.
 
 Decision record: docs/decisions/0012-layout-by-layer.md.
 """
@@ -15,7 +16,7 @@ import os
 import sys
 import traceback
 
-from daq.errors import InputError, NumericalFailure
+from daq.errors import DaqError, InputError, NumericalFailure
 
 from . import analyses, archive, bench, daemon, data, demo, models, propose, rig, sim, soak, warm
 
@@ -47,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         where = ", ".join(map(str, data)) if isinstance(data, list) else (data or args.command)
         print(f"daq: error: {where}: the fit failed: {exc}", file=sys.stderr)
         return 2
+    except DaqError as exc:  # our own failure at run time (a device that stopped answering, a busy rig): one line
+        print(f"daq: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("daq: interrupted", file=sys.stderr)
         return 130
